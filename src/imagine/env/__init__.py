@@ -1,0 +1,45 @@
+"""GesturePuzzle: the human-robot interaction task of the paper (DESIGN.md section 1).
+
+Registered with Gymnasium as ``imagine/GesturePuzzle-v0``; the task is a keyword::
+
+    env = gymnasium.make("imagine/GesturePuzzle-v0", task="hard")
+    envs = gymnasium.make_vec("imagine/GesturePuzzle-v0", num_envs=1000, task="hard",
+                              vectorization_mode="vector_entry_point")
+"""
+
+import gymnasium as gym
+
+from imagine.env.fragments import (
+    FragmentPool,
+    load_fragment_folder,
+    procedural_pool,
+    save_fragment_folder,
+)
+from imagine.env.gesture_puzzle import GesturePuzzleEnv, make_composer
+from imagine.env.rules import optimal_plan_length, transition
+from imagine.env.scene import SceneComposer
+from imagine.env.vector import GesturePuzzleVectorEnv
+
+ENV_ID = "imagine/GesturePuzzle-v0"
+
+if ENV_ID not in gym.registry:
+    gym.register(
+        id=ENV_ID,
+        entry_point="imagine.env.gesture_puzzle:GesturePuzzleEnv",
+        vector_entry_point="imagine.env.vector:GesturePuzzleVectorEnv",
+        max_episode_steps=None,
+    )
+
+__all__ = [
+    "ENV_ID",
+    "FragmentPool",
+    "GesturePuzzleEnv",
+    "GesturePuzzleVectorEnv",
+    "SceneComposer",
+    "load_fragment_folder",
+    "make_composer",
+    "optimal_plan_length",
+    "procedural_pool",
+    "save_fragment_folder",
+    "transition",
+]

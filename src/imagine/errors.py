@@ -1,0 +1,22 @@
+"""User-facing errors.
+
+Everything a user can get wrong (a config value, a file, a folder, an action) raises a subclass of
+:class:`ImagineError` with a one-line message that names the problem. The command line prints that
+line and exits non-zero, never a traceback.
+"""
+
+
+class ImagineError(Exception):
+    """Base class of every error whose message is meant for the user, as one line."""
+
+
+class ConfigError(ImagineError, ValueError):
+    """A configuration value, or a combination of values, is invalid."""
+
+
+class FragmentFolderError(ImagineError):
+    """A folder of fragment photographs does not follow the documented layout."""
+
+
+class DatasetFileError(ImagineError):
+    """A dataset file is missing, truncated or not one that `imagine dataset` wrote."""
