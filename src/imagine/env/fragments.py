@@ -84,11 +84,17 @@ def procedural_pool(seed: int = 0, n_cube: int = 16, n_hand: int = 50) -> Fragme
     """The built-in pool: ``n_cube`` fragments per (cube, direction) and ``n_hand`` per pointed
     cube (the paper's 16 and 50 by default), drawn deterministically from ``seed``."""
     if n_cube < 1 or n_hand < 1:
-        raise ConfigError(f"fragment counts must be at least 1, got n_cube={n_cube}, n_hand={n_hand}")
+        raise ConfigError(
+            f"fragment counts must be at least 1, got n_cube={n_cube}, n_hand={n_hand}"
+        )
     cubes = np.stack(
         [
-            np.stack([np.stack([cube_fragment(seed, i, d, k) for k in range(n_cube)])
-                      for d in range(N_DIRECTIONS)])
+            np.stack(
+                [
+                    np.stack([cube_fragment(seed, i, d, k) for k in range(n_cube)])
+                    for d in range(N_DIRECTIONS)
+                ]
+            )
             for i in range(N_CUBES)
         ]
     )

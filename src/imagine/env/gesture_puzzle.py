@@ -51,8 +51,12 @@ def check_macrostate(state: Any, task: str) -> np.ndarray:
     s = np.asarray(state)
     if s.shape != (4,) or not np.issubdtype(s.dtype, np.integer):
         raise ValueError(f"macrostate must be 4 integers (d0, d1, d2, h), got {state!r}")
-    if not ((s[:3] >= 0).all() and (s[:3] < rules.N_DIRECTIONS).all() and 0 <= s[3] < rules.N_CUBES):
-        raise ValueError(f"macrostate {tuple(int(x) for x in s)} is out of range: d_i in 0..3, h in 0..2")
+    if not (
+        (s[:3] >= 0).all() and (s[:3] < rules.N_DIRECTIONS).all() and 0 <= s[3] < rules.N_CUBES
+    ):
+        raise ValueError(
+            f"macrostate {tuple(int(x) for x in s)} is out of range: d_i in 0..3, h in 0..2"
+        )
     if rules.is_terminal(s, task):
         raise ValueError(f"macrostate {tuple(int(x) for x in s)} is terminal in task {task!r}")
     return s.astype(np.int64)

@@ -49,9 +49,7 @@ def _background(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     return base + gy * y + gx * x
 
 
-def _finish(
-    rng: np.random.Generator, drawing: Image.Image, background: np.ndarray
-) -> np.ndarray:
+def _finish(rng: np.random.Generator, drawing: Image.Image, background: np.ndarray) -> np.ndarray:
     """Downsample the supersampled drawing, light it, blur it and add sensor noise."""
     h, w = background.shape
     small = drawing.resize((w, h), Image.Resampling.BOX)
@@ -148,22 +146,36 @@ def hand_fragment(seed: int, pointed: int, k: int) -> np.ndarray:
     # Fist: palm, curled fingers as knuckle bumps and a thumb; the index finger points up.
     fist_r = arm_w * rng.uniform(0.5, 0.6)
     fx, fy = tip_x, fist_y
-    pen.ellipse([px(fx - fist_r, fy - fist_r * 0.7), px(fx + fist_r, fy + fist_r * 0.8)],
-                fill=(skin, 255))
+    pen.ellipse(
+        [px(fx - fist_r, fy - fist_r * 0.7), px(fx + fist_r, fy + fist_r * 0.8)], fill=(skin, 255)
+    )
     knuckle = fist_r * 0.42
     side = 1 if rng.random() < 0.5 else -1
     for j in range(3):
         kx = fx + side * (j + 1) * knuckle * 0.9
-        pen.ellipse([px(kx - knuckle, fy - fist_r * 0.75 - knuckle * 0.4),
-                     px(kx + knuckle, fy - fist_r * 0.75 + knuckle * 1.4)], fill=(skin - 12, 255))
+        pen.ellipse(
+            [
+                px(kx - knuckle, fy - fist_r * 0.75 - knuckle * 0.4),
+                px(kx + knuckle, fy - fist_r * 0.75 + knuckle * 1.4),
+            ],
+            fill=(skin - 12, 255),
+        )
     thumb = (fx - side * fist_r * 0.9, fy + fist_r * 0.1)
-    pen.ellipse([px(thumb[0] - knuckle, thumb[1] - knuckle * 1.3),
-                 px(thumb[0] + knuckle, thumb[1] + knuckle * 1.3)], fill=(skin - 6, 255))
+    pen.ellipse(
+        [
+            px(thumb[0] - knuckle, thumb[1] - knuckle * 1.3),
+            px(thumb[0] + knuckle, thumb[1] + knuckle * 1.3),
+        ],
+        fill=(skin - 6, 255),
+    )
     finger_w = rng.uniform(7, 10)
     tip_y = rng.uniform(1.0, 5.0)
     lean = rng.uniform(-4, 4)
-    pen.line([px(fx, fy - fist_r * 0.5), px(fx + lean, tip_y + finger_w / 2)], fill=(skin, 255),
-             width=int(finger_w * ss))
+    pen.line(
+        [px(fx, fy - fist_r * 0.5), px(fx + lean, tip_y + finger_w / 2)],
+        fill=(skin, 255),
+        width=int(finger_w * ss),
+    )
     r = finger_w / 2
     pen.ellipse([px(fx + lean - r, tip_y), px(fx + lean + r, tip_y + 2 * r)], fill=(skin, 255))
     return _finish(rng, drawing, background)

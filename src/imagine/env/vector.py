@@ -39,7 +39,11 @@ class GesturePuzzleVectorEnv(VectorEnv):
     legal non-goal state; ``options={"reset_mask": bool (N,)}`` resets only some of them.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 2, "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 2,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
@@ -104,7 +108,9 @@ class GesturePuzzleVectorEnv(VectorEnv):
         options = dict(options or {})
         mask = np.asarray(options.pop("reset_mask", np.ones(self.num_envs, dtype=bool)))
         if mask.shape != (self.num_envs,) or mask.dtype != np.bool_:
-            raise ValueError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},)")
+            raise ValueError(
+                f"options['reset_mask'] must be a bool array of shape ({self.num_envs},)"
+            )
         seeds = self._seed_list(seed)
         envs = np.flatnonzero(mask)
         for i in envs:
@@ -171,10 +177,16 @@ class GesturePuzzleVectorEnv(VectorEnv):
             self._actions[resetting] = 0
             self._observe(np.arange(self.num_envs))
             self._autoreset = terminated | truncated
-        return self._observation(), reward.astype(np.float64), terminated, truncated, {
-            **self._info(),
-            **info,
-        }
+        return (
+            self._observation(),
+            reward.astype(np.float64),
+            terminated,
+            truncated,
+            {
+                **self._info(),
+                **info,
+            },
+        )
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """The full scene of every sub-environment, RGB uint8 (H, W, 3) each."""

@@ -1,0 +1,128 @@
+"""The `imagine` command. A thin layer over the library: every subcommand parses its options,
+calls one function, and turns a user error (:class:`~imagine.errors.ImagineError`) into a
+one-line message and exit status 2."""
+
+from __future__ import annotations
+
+import sys
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from imagine.errors import ImagineError
+
+app = typer.Typer(
+    help="Deep RL with imaginary rollouts (Thabet et al. 2019): V, M and C on GesturePuzzle.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+env_app = typer.Typer(help="The GesturePuzzle environment.", no_args_is_help=True)
+app.add_typer(env_app, name="env")
+console = Console(stderr=True)
+
+
+class TaskName(StrEnum):
+    original = "original"
+    hard = "hard"
+
+
+FragmentsOption = Annotated[
+    Path | None,
+    typer.Option(help="Folder of fragment photographs (see README); default: procedural renderer."),
+]
+FragmentSeedOption = Annotated[int, typer.Option(help="Seed of the procedural renderer.")]
+CubeFragmentsOption = Annotated[
+    int, typer.Option(help="Procedural fragments per (cube, direction) microstate.")
+]
+HandFragmentsOption = Annotated[int, typer.Option(help="Procedural fragments per pointed cube.")]
+
+
+@env_app.command("show")
+def env_show(
+    task: Annotated[
+        TaskName, typer.Option(help="Which goal: original or hard.")
+    ] = TaskName.original,
+    seed: Annotated[int, typer.Option(help="Seed of the examples drawn.")] = 0,
+    out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("results/contact_sheet.png"),
+    fragments: FragmentsOption = None,
+    fragment_seed: FragmentSeedOption = 0,
+    n_cube_fragments: CubeFragmentsOption = 16,
+    n_hand_fragments: HandFragmentsOption = 50,
+) -> None:
+    """Write a PNG contact sheet: example scenes of goal, illegal and start states with their
+    labels and observations, and the fragment variation of one microstate."""
+    from imagine.env import make_composer
+    from imagine.env.contact_sheet import contact_sheet
+
+    composer = make_composer(fragments, fragment_seed, n_cube_fragments, n_hand_fragments)
+    path = contact_sheet(composer, task.value, seed, out)
+    console.print(f"wrote {path}")
+
+
+@env_app.command("export-fragments")
+def env_export_fragments(
+    folder: Annotated[Path, typer.Argument(help="Folder to write the fragment PNGs into.")],
+    fragment_seed: FragmentSeedOption = 0,
+    n_cube_fragments: CubeFragmentsOption = 16,
+    n_hand_fragments: HandFragmentsOption = 50,
+) -> None:
+    """Write the procedural fragment pool as a folder in the layout `--fragments` reads: a
+    template for fragments cut from your own camera."""
+    from imagine.env import procedural_pool, save_fragment_folder
+
+    pool = procedural_pool(fragment_seed, n_cube_fragments, n_hand_fragments)
+    console.print(f"wrote {save_fragment_folder(pool, folder)}")
+
+
+@app.command("dataset")
+def dataset(
+    out: Annotated[Path, typer.Argument(help="safetensors file to write.")],
+    n_train: Annotated[int, typer.Option(help="Training images.")] = 100_000,
+    n_test: Annotated[int, typer.Option(help="Test images.")] = 10_000,
+    seed: Annotated[int, typer.Option(help="Seed of the states and fragments drawn.")] = 0,
+    fragments: FragmentsOption = None,
+    fragment_seed: FragmentSeedOption = 0,
+    n_cube_fragments: CubeFragmentsOption = 16,
+    n_hand_fragments: HandFragmentsOption = 50,
+) -> None:
+    """Synthesize the images V trains on (the paper's 100,000 training and 10,000 test)."""
+    from imagine.dataset import DatasetConfig, save_dataset, synthesize
+
+    config = DatasetConfig(
+        n_train,
+        n_test,
+        seed,
+        None if fragments is None else str(fragments),
+        fragment_seed,
+        n_cube_fragments,
+        n_hand_fragments,
+    )
+    start = time.perf_counter()
+    with Progress(
+        TextColumn("synthesizing"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        task_id = bar.add_task("images", total=n_train + n_test)
+        arrays = synthesize(config, progress=lambda n: bar.advance(task_id, n))
+    seconds = time.perf_counter() - start
+    path = save_dataset(out, arrays, config)
+    rate = (n_train + n_test) / seconds
+    console.print(f"wrote {path}: {n_train} train + {n_test} test images, {rate:,.0f} images/s")
+
+
+def main() -> None:
+    """Entry point of the `imagine` command."""
+    try:
+        app()
+    except ImagineError as exc:
+        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        sys.exit(2)
