@@ -1,0 +1,154 @@
+"""The Gymnasium environment: API conformance, episodes, seeding and what the images show."""
+
+import warnings
+from collections import Counter
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from imagine.env import ENV_ID, GesturePuzzleEnv, rules
+from imagine.errors import ConfigError
+
+
+@pytest.fixture(scope="module")
+def env():
+    return gym.make(ENV_ID, task="original").unwrapped
+
+
+@pytest.mark.parametrize("task", rules.TASKS)
+@pytest.mark.parametrize("render_mode", [None, "rgb_array"])
+def test_check_env_passes_without_warnings(task, render_mode):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(gym.make(ENV_ID, task=task, render_mode=render_mode).unwrapped)
+
+
+def test_observation_dtype_shape_and_info(env):
+    obs, info = env.reset(seed=0)
+    assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
+    assert env.observation_space.contains(obs)
+    assert isinstance(info["macrostate"], tuple) and len(info["macrostate"]) == 4
+    for _ in range(5):
+        obs, _, term, trunc, info = env.step(env.action_space.sample())
+        assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
+        assert info["macrostate"] == env.macrostate
+        if term or trunc:
+            break
+
+
+def test_same_seed_same_episode_other_seed_other_episode():
+    def rollout(seed):
+        e = GesturePuzzleEnv(task="hard")
+        obs, info = e.reset(seed=seed)
+        frames, states = [obs], [info["macrostate"]]
+        for a in [0, 3, 4, 1, 5, 2]:
+            obs, _, term, trunc, info = e.step(a)
+            frames.append(obs)
+            states.append(info["macrostate"])
+            if term or trunc:
+                break
+        return np.stack(frames), states
+
+    a, b, c = rollout(7), rollout(7), rollout(8)
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+    assert not np.array_equal(a[0][0], c[0][0])
+
+
+@pytest.mark.parametrize("task", rules.TASKS)
+def test_reset_is_uniform_over_legal_non_goal_states(task):
+    e = GesturePuzzleEnv(task=task)
+    e.reset(seed=1)
+    starts = {tuple(int(x) for x in s) for s in rules.start_states(task)}
+    n = 60 * len(starts)
+    counts = Counter(e.reset()[1]["macrostate"] for _ in range(n))
+    assert set(counts) == starts  # only legal non-goal states, and every one of them
+    # Uniform: each of the k states is hit about n/k = 60 times (chi-square, 1e-4 level).
+    expected = n / len(starts)
+    chi2 = sum((c - expected) ** 2 / expected for c in counts.values())
+    assert chi2 < len(starts) + 5 * np.sqrt(2 * len(starts))
+
+
+def test_episode_rewards_and_termination():
+    e = GesturePuzzleEnv(task="original")
+    _, info = e.reset(seed=0, options={"macrostate": (1, 0, 3, 0)})  # RIGHT UP LEFT, hand 0
+    assert info["macrostate"] == (1, 0, 3, 0)
+    _, r, term, trunc, info = e.step(0)  # cube 0 clockwise: DOWN -> goal
+    assert (r, term, trunc, info["macrostate"]) == (50.0, True, False, (2, 0, 3, 0))
+    e.reset(options={"macrostate": (1, 0, 3, 0)})
+    _, r, term, trunc, _ = e.step(1)  # cube 0 counter-clockwise: UP, shared with cube 1
+    assert (r, term, trunc) == (-5.0, True, False)
+    e.reset(options={"macrostate": (1, 0, 3, 0)})
+    _, r, term, trunc, _ = e.step(3)  # cube 1 counter-clockwise: LEFT, shared with cube 2
+    assert (r, term, trunc) == (-5.0, True, False)
+
+
+def test_truncation_after_ten_actions_and_hand_never_moves():
+    e = GesturePuzzleEnv(task="original")
+    # (UP, RIGHT, LEFT, 2) with DOWN free: cube 1 RIGHT -> DOWN and back is always legal and
+    # never a goal (the hand points at cube 2, which stays LEFT).
+    e.reset(seed=0, options={"macrostate": (0, 1, 3, 2)})
+    for t in range(1, 11):
+        _, r, term, trunc, info = e.step(2 if t % 2 else 3)
+        assert r == -1.0 and not term
+        assert trunc == (t == 10)
+        assert info["macrostate"][3] == 2 and info["actions"] == t
+
+
+def test_invalid_actions_raise_clear_errors(env):
+    env.reset(seed=0)
+    for bad in (6, -1, 2.5, "1", None):
+        with pytest.raises(ValueError, match="invalid action"):
+            env.step(bad)
+    env.step(np.int64(3))  # numpy integers are fine
+
+
+def test_bad_arguments():
+    with pytest.raises(ConfigError, match="unknown task 'easy'"):
+        GesturePuzzleEnv(task="easy")
+    with pytest.raises(ConfigError, match="render_mode"):
+        GesturePuzzleEnv(render_mode="human")
+    e = GesturePuzzleEnv()
+    with pytest.raises(ValueError, match="terminal"):
+        e.reset(options={"macrostate": (0, 0, 1, 0)})
+    with pytest.raises(ValueError, match="out of range"):
+        e.reset(options={"macrostate": (0, 4, 1, 0)})
+
+
+def test_render_returns_the_full_scene(env):
+    e = GesturePuzzleEnv(render_mode="rgb_array")
+    obs, _ = e.reset(seed=3)
+    frame = e.render()
+    assert frame.dtype == np.uint8 and frame.shape == (144, 288, 3)
+    assert (frame[..., 0] == frame[..., 2]).all()  # a grayscale scene
+    assert GesturePuzzleEnv().render() is None
+
+
+def _linear_probe_accuracy(x, labels, n_fit):
+    """Fit a ridge-regression classifier on the first ``n_fit`` rows; accuracy on the rest."""
+    x = (x - x.mean(1, keepdims=True)) / x.std(1, keepdims=True)  # contrast-normalize
+    x = np.c_[x, np.ones(len(x))]
+    targets = np.eye(labels.max() + 1)[labels]
+    a, t = x[:n_fit], targets[:n_fit]
+    w = np.linalg.solve(a.T @ a + np.eye(a.shape[1]), a.T @ t)
+    return float(((x[n_fit:] @ w).argmax(1) == labels[n_fit:]).mean())
+
+
+def test_arrows_and_pointed_cube_are_readable_from_the_observation():
+    """Each channel shows one cube's arrow, and the hand shows in the pointed cube's channel:
+    a linear probe on the pixels of a channel, at half resolution, reads them."""
+    from imagine.env import make_composer
+
+    composer = make_composer()
+    rng = np.random.default_rng(0)
+    states = rules.all_macrostates()[rng.integers(0, 192, 4000)]
+    obs = composer.sample(rng, states).astype(np.float64) / 255
+    half = obs.reshape(len(obs), 32, 2, 32, 2, 3).mean(axis=(2, 4))
+    for cube in range(3):
+        x = half[:, :20, :, cube].reshape(len(obs), -1)  # the cube part of the strip
+        acc = _linear_probe_accuracy(x, states[:, cube], n_fit=3000)
+        assert acc > 0.99, f"arrow of cube {cube}: {acc:.3f}"
+    x = half[:, 22:, :, :].reshape(len(obs), -1)  # the hand part of all three strips
+    acc = _linear_probe_accuracy(x, states[:, 3], n_fit=3000)
+    assert acc > 0.99, f"pointed cube: {acc:.3f}"
