@@ -116,12 +116,19 @@ def test_bad_arguments():
         e.reset(options={"macrostate": (0, 4, 1, 0)})
 
 
-def test_render_returns_the_full_scene(env):
+def test_render_returns_the_full_scene_the_observation_is_cut_from():
+    from imagine.env.scene import area_resize_matrix
+
     e = GesturePuzzleEnv(render_mode="rgb_array")
     obs, _ = e.reset(seed=3)
     frame = e.render()
     assert frame.dtype == np.uint8 and frame.shape == (144, 288, 3)
     assert (frame[..., 0] == frame[..., 2]).all()  # a grayscale scene
+    rows, cols = area_resize_matrix(144, 64), area_resize_matrix(96, 64).T
+    scene = frame[..., 0].astype(np.float64)
+    for i in range(3):  # three strips along the horizontal axis, each resized to 64 x 64
+        strip = rows @ scene[:, 96 * i : 96 * (i + 1)] @ cols
+        assert np.abs(strip - obs[..., i]).max() <= 1.0
     assert GesturePuzzleEnv().render() is None
 
 

@@ -1,0 +1,75 @@
+"""The `imagine` command: help everywhere, the contact sheet, one-line errors."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+IMAGINE = str(Path(sys.executable).parent / "imagine")
+
+
+def run(*args):
+    return subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False)
+
+
+@pytest.mark.parametrize(
+    "args", [["--help"], ["env", "--help"], ["env", "show", "--help"], ["dataset", "--help"]]
+)
+def test_help(args):
+    done = run(*args)
+    assert done.returncode == 0 and "Usage" in done.stdout
+
+
+def test_env_show_writes_a_contact_sheet(tmp_path):
+    out = tmp_path / "sheet.png"
+    done = run("env", "show", "--task", "hard", "--seed", "0", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    with Image.open(out) as img:
+        pixels = np.asarray(img.convert("L"))
+    assert pixels.shape[0] > 500 and pixels.shape[1] > 500
+    assert pixels.std() > 20  # a picture, not a blank page
+
+
+def test_export_fragments_round_trips(tmp_path):
+    folder = tmp_path / "frags"
+    assert (
+        run(
+            "env",
+            "export-fragments",
+            str(folder),
+            "--n-cube-fragments",
+            "2",
+            "--n-hand-fragments",
+            "3",
+        ).returncode
+        == 0
+    )
+    assert len(list((folder / "cube2" / "left").glob("*.png"))) == 2
+    assert len(list((folder / "hand" / "cube1").glob("*.png"))) == 3
+    done = run("env", "show", "--fragments", str(folder), "--out", str(tmp_path / "s.png"))
+    assert done.returncode == 0, done.stderr
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["env", "show", "--fragments", "/no/such/folder"], "does not exist"),
+        (["dataset", "x.safetensors", "--n-train", "0"], "must be positive"),
+    ],
+)
+def test_user_errors_are_one_line_and_exit_2(tmp_path, args, message):
+    done = subprocess.run(
+        [IMAGINE, *args], capture_output=True, text=True, check=False, cwd=tmp_path
+    )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0]
+    assert "Traceback" not in done.stderr
+
+
+def test_unknown_task_is_rejected():
+    done = run("env", "show", "--task", "easy")
+    assert done.returncode == 2 and "easy" in done.stderr and "Traceback" not in done.stderr
