@@ -65,12 +65,19 @@ class SceneComposer:
         ``fragments`` (..., 4) (see :meth:`FragmentPool.sample_indices`): uint8 (..., 64, 64, 3)."""
         s = np.asarray(states, dtype=np.int64)
         f = np.asarray(fragments, dtype=np.int64)
-        out = np.empty((*s.shape[:-1], self.obs_size, self.obs_size, N_CUBES), dtype=np.uint8)
+        n_dir, k_cube = self.cube_parts.shape[1:3]
+        k_hand = self.hand_parts.shape[1]
+        size = self.obs_size
+        cubes = self.cube_parts.reshape(-1, size, size)  # flat row (i, d, k)
+        hands = self.hand_parts.reshape(-1, size, size)  # flat row (h, k, i)
+        out = np.empty((*s.shape[:-1], size, size, N_CUBES), dtype=np.uint8)
         for i in range(N_CUBES):
-            strip = self.cube_parts[i, s[..., i], f[..., i]]
-            strip += self.hand_parts[s[..., 3], f[..., 3], i]
+            # np.take on flat row numbers is twice as fast as multi-axis fancy indexing.
+            strip = np.take(cubes, (i * n_dir + s[..., i]) * k_cube + f[..., i], axis=0)
+            strip += np.take(hands, (s[..., 3] * k_hand + f[..., 3]) * N_CUBES + i, axis=0)
             strip += _HALF
-            out[..., i] = strip >> _FRACTION_BITS
+            strip >>= _FRACTION_BITS
+            out[..., i] = strip
         return out
 
     def sample(self, rng: np.random.Generator, states: np.ndarray) -> np.ndarray:
