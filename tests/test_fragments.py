@@ -18,7 +18,9 @@ from imagine.env import (
     SceneComposer,
     load_fragment_folder,
     procedural_pool,
+    rules,
     save_fragment_folder,
+    transition,
 )
 from imagine.env.procedural import CUBE_SHAPE, HAND_SHAPE
 from imagine.env.rules import DIRECTION_NAMES, N_CUBES, N_DIRECTIONS, all_macrostates
@@ -306,11 +308,14 @@ def test_env_accepts_a_folder(template: Path, small_pool: FragmentPool, as_str: 
     assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
     assert env.observation_space.contains(obs)
     for a in range(6):
+        state = info["macrostate"]
         obs, reward, terminated, truncated, info = env.step(a)
         assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
+        assert info["macrostate"] == transition(state, a)
+        assert reward == rules.rewards(np.array(info["macrostate"]), "original")
         if terminated or truncated:
             obs, info = env.reset()
-            assert obs.shape == (64, 64, 3)
+            assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
 
 
 def test_env_with_a_bad_folder_raises(folder: Path) -> None:
@@ -348,13 +353,6 @@ def test_cli_bad_folder_prints_one_error_line(folder: Path, tmp_path: Path) -> N
     assert not out.exists()
 
 
-@pytest.mark.xfail(
-    reason="src/imagine/cli.py main() passes the error message to rich's console.print as "
-    "markup: square brackets in it (a folder named 'photos[v2]') are swallowed as style tags, "
-    "and '[/...]' raises rich.errors.MarkupError with a traceback and exit status 1; the "
-    "message should be escaped (rich.markup.escape)",
-    strict=True,
-)
 @pytest.mark.parametrize("name", ["photos[v2]", "shots[/2024]"])
 def test_cli_error_line_keeps_square_brackets(tmp_path: Path, name: str) -> None:
     missing = tmp_path / name
@@ -427,8 +425,9 @@ def test_observation_is_the_scene_cut_and_resized(make_pool: Callable[[], Fragme
     for state, frag, obs in zip(states, frags, batch, strict=True):
         scene = composer.scene(state, frag)
         assert scene.shape == pool.scene_shape
-        np.testing.assert_array_equal(scene[: pool.cube_shape[0], : pool.cube_shape[1]],
-                                      pool.cubes[0, state[0], frag[0]])
+        np.testing.assert_array_equal(
+            scene[: pool.cube_shape[0], : pool.cube_shape[1]], pool.cubes[0, state[0], frag[0]]
+        )
         np.testing.assert_array_equal(scene[pool.cube_shape[0] :], pool.hands[state[3], frag[3]])
         expected = _resized_strips(scene, pool.cube_shape[1])
         assert np.abs(obs.astype(np.float64) - np.rint(expected)).max() <= 1
@@ -440,7 +439,9 @@ def test_observation_of_a_flat_scene_is_flat(level: int) -> None:
     # Full white must not overflow the fixed-point sum; black must stay black.
     pool = _random_pool(0, (37, 53), 11, 1, 1)
     flat = FragmentPool(
-        np.full_like(pool.cubes, level), pool.cube_counts, np.full_like(pool.hands, level),
+        np.full_like(pool.cubes, level),
+        pool.cube_counts,
+        np.full_like(pool.hands, level),
         pool.hand_counts,
     )
     composer = SceneComposer(flat)

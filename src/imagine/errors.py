@@ -20,3 +20,7 @@ class FragmentFolderError(ImagineError):
 
 class DatasetFileError(ImagineError):
     """A dataset file is missing, truncated or not one that `imagine dataset` wrote."""
+
+
+class CheckpointError(ImagineError):
+    """A checkpoint is missing, truncated, corrupt or of another architecture."""

@@ -56,8 +56,9 @@ class GesturePuzzleVectorEnv(VectorEnv):
         render_mode: str | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
     ) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
+        num_envs = int(num_envs)
         try:
             self.task = rules.check_task(task)
             mode = AutoresetMode(autoreset_mode)

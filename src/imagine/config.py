@@ -1,0 +1,158 @@
+"""Typed configurations and presets.
+
+Each part of the system has one dataclass whose fields are its hyperparameters, each documented
+with the paper's symbol or the DESIGN.md choice it stands for. Presets:
+
+- ``paper``: every number of the paper (DESIGN.md section 2).
+- ``fast``: the default, sized so the whole study runs on a 2-core CPU; deviations documented.
+- ``smoke``: seconds, for tests.
+
+Configs read from and write to YAML (``yaml.safe_load`` only); unknown keys and bad values get a
+one-line :class:`~imagine.errors.ConfigError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, TypeVar, get_type_hints
+
+import yaml
+
+from imagine.errors import ConfigError
+
+PRESETS = ("paper", "fast", "smoke")
+
+
+@dataclass(frozen=True)
+class VisionConfig:
+    """V: the beta-VAE (paper section V-B, Variational Autoencoder; DESIGN.md section 2)."""
+
+    latent_dim: int = 8
+    """Size of the latent state z (the paper's 8)."""
+    beta: float = 4.0
+    """Weight of the KL term in the loss (paper: beta = 4)."""
+    lr: float = 5e-4
+    """Adam learning rate (paper: 0.0005)."""
+    batch_size: int = 2000
+    """Images per update (paper: 2000)."""
+    epochs: int = 1000
+    """Passes over the training images (paper: 1000)."""
+    n_train: int = 100_000
+    """Synthesized training images (paper: 100,000)."""
+    n_test: int = 10_000
+    """Synthesized test images (paper: 10,000)."""
+    data_seed: int = 0
+    """Seed of the synthesized images."""
+    seed: int = 0
+    """Seed of the weights, the shuffling and the reparameterization noise."""
+    n_classifier_fit: int = 20_000
+    """Training images whose encoded means fit the latent classifier."""
+    n_classifier_test: int = 10_000
+    """Fresh images (new seed) on which the latent classifier is scored."""
+
+    def __post_init__(self) -> None:
+        positive = ("latent_dim", "lr", "batch_size", "epochs", "n_train", "n_test")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"vision.{name} must be positive, got {getattr(self, name)}")
+        if self.beta < 0:
+            raise ConfigError(f"vision.beta must be >= 0, got {self.beta}")
+        if self.batch_size > self.n_train:
+            raise ConfigError(
+                f"vision.batch_size ({self.batch_size}) is larger than vision.n_train "
+                f"({self.n_train})"
+            )
+        if self.n_classifier_fit < 1 or self.n_classifier_test < 1:
+            raise ConfigError("vision.n_classifier_fit and n_classifier_test must be positive")
+
+
+VISION_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    # fast: 2-core CPU in minutes. Fewer images and epochs and a smaller batch (more updates per
+    # epoch); the architecture, latent size, beta and learning rate are the paper's.
+    "fast": {
+        "n_train": 20_000,
+        "n_test": 2_000,
+        "epochs": 8,
+        "batch_size": 100,
+        "n_classifier_fit": 10_000,
+    },
+    "smoke": {
+        "n_train": 512,
+        "n_test": 128,
+        "epochs": 2,
+        "batch_size": 64,
+        "n_classifier_fit": 512,
+        "n_classifier_test": 256,
+    },
+}
+
+
+T = TypeVar("T")
+
+
+def check_preset(preset: str) -> str:
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    return preset
+
+
+def vision_preset(preset: str = "fast", **overrides: Any) -> VisionConfig:
+    """The V config of a preset, with ``overrides`` applied (validated)."""
+    values = {**VISION_PRESETS[check_preset(preset)], **overrides}
+    return from_dict(VisionConfig, values, "vision")
+
+
+def from_dict(cls: type[T], values: dict[str, Any], section: str) -> T:
+    """Build a config dataclass from a mapping, naming unknown keys and wrongly typed values."""
+    if not isinstance(values, dict):
+        raise ConfigError(f"{section} must be a mapping, got {type(values).__name__}")
+    names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+    hints = get_type_hints(cls)
+    for key, value in values.items():
+        if key not in names:
+            near = difflib.get_close_matches(str(key), names, n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise ConfigError(f"unknown key {section}.{key}{hint}")
+        _check_type(f"{section}.{key}", value, hints[key])
+    return cls(**values)
+
+
+def _check_type(name: str, value: Any, hint: Any) -> None:
+    text = str(hint)
+    if hint is bool or text == "bool":
+        ok = isinstance(value, bool)
+    elif hint is int or text == "int":
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif hint is float or text == "float":
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+    elif hint is str or text == "str":
+        ok = isinstance(value, str)
+    else:
+        ok = True
+    if not ok:
+        raise ConfigError(
+            f"{name} must be of type {getattr(hint, '__name__', text)}, got {value!r}"
+        )
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    return dataclasses.asdict(config)
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """A YAML file that must hold a mapping (safe loader only)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {path} does not exist")
+    try:
+        document = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        message = f"config file {path} is not valid YAML ({exc})".replace("\n", " ")
+        raise ConfigError(message) from None
+    if not isinstance(document, dict):
+        raise ConfigError(f"config file {path} must hold a mapping, got {type(document).__name__}")
+    return document

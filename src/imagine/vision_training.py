@@ -1,0 +1,195 @@
+"""Training V, resumable, with per-epoch metrics (paper section V-B).
+
+A V run folder holds:
+
+- ``config.yaml``: the resolved :class:`~imagine.config.VisionConfig`;
+- ``vae.safetensors`` + ``vae.json``: the model, Adam's state and the random generator state
+  after the last finished epoch, and the epoch count; written atomically every epoch, so a run
+  stopped at any moment resumes from its last finished epoch with the same numbers;
+- ``classifier.safetensors``: the latent classifier fitted when training ends;
+- ``metrics.csv`` and ``tensorboard/``: per-epoch train and test loss, reconstruction and KL
+  apart, per image.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from imagine.checkpoint import (
+    atomic_write_text,
+    load_state_dict_strict,
+    load_tensors,
+    optimizer_from_tensors,
+    optimizer_to_tensors,
+    read_json,
+    save_tensors,
+    write_json,
+)
+from imagine.config import VisionConfig, from_dict
+from imagine.dataset import DatasetConfig, synthesize
+from imagine.errors import CheckpointError
+from imagine.latent_classifier import LatentClassifier
+from imagine.metrics import MetricsLogger
+from imagine.vision import ConvVAE, encode_images, to_input
+
+FORMAT = "imagine-vae-1"
+
+
+@dataclass
+class VisionData:
+    train_images: np.ndarray
+    train_states: np.ndarray
+    test_images: np.ndarray
+    test_states: np.ndarray
+
+
+def make_data(config: VisionConfig) -> VisionData:
+    """The synthesized training and test images of a config (deterministic)."""
+    arrays = synthesize(DatasetConfig(config.n_train, config.n_test, config.data_seed))
+    return VisionData(
+        arrays["train_images"], arrays["train_macrostates"],
+        arrays["test_images"], arrays["test_macrostates"],
+    )  # fmt: skip
+
+
+def _evaluate(vae: ConvVAE, images: np.ndarray, beta: float, seed: int) -> dict[str, float]:
+    """Mean test loss per image, with a fixed noise seed so epochs compare fairly."""
+    generator = torch.Generator().manual_seed(seed)
+    vae.eval()
+    totals = np.zeros(3)
+    with torch.no_grad():
+        for start in range(0, len(images), 1000):
+            x = to_input(images[start : start + 1000]).contiguous(memory_format=torch.channels_last)
+            loss = vae.loss(x, beta, generator)
+            totals += len(x) * np.array([float(v) for v in loss])
+    vae.train()
+    total, reconstruction, kl = totals / len(images)
+    return {"loss": total, "reconstruction": reconstruction, "kl": kl}
+
+
+def save_vae(folder: Path, vae: ConvVAE, config: VisionConfig, epoch: int, extra: dict) -> None:
+    save_tensors(
+        folder / "vae.safetensors",
+        {**{f"model.{k}": v for k, v in vae.state_dict().items()}, **extra},
+    )
+    write_json(
+        folder / "vae.json",
+        {"format": FORMAT, "epoch": epoch, "config": dataclasses.asdict(config)},
+    )
+
+
+def load_vae(folder: str | Path) -> tuple[ConvVAE, VisionConfig, int]:
+    """The trained V of a run folder, its config and the epochs it has finished."""
+    folder = Path(folder)
+    meta = read_json(folder / "vae.json", "V checkpoint metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"{folder / 'vae.json'} is not a V checkpoint of this version")
+    config = from_dict(VisionConfig, meta["config"], "vision")
+    vae = ConvVAE(config.latent_dim)
+    tensors = load_tensors(folder / "vae.safetensors", "V checkpoint")
+    model = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
+    load_state_dict_strict(vae, model, f"V checkpoint {folder / 'vae.safetensors'}")
+    return vae, config, int(meta["epoch"])
+
+
+def load_classifier(folder: str | Path, latent_dim: int) -> LatentClassifier:
+    classifier = LatentClassifier(latent_dim)
+    path = Path(folder) / "classifier.safetensors"
+    load_state_dict_strict(classifier, load_tensors(path, "latent classifier"), str(path))
+    return classifier
+
+
+def _resume_point(folder: Path, config: VisionConfig) -> int:
+    """Epochs already finished by a compatible run in ``folder`` (0 for a new run)."""
+    if not (folder / "vae.json").is_file():
+        return 0
+    meta = read_json(folder / "vae.json", "V checkpoint metadata")
+    saved = from_dict(VisionConfig, meta.get("config", {}), "vision")
+    if dataclasses.replace(saved, epochs=config.epochs) != config:
+        raise CheckpointError(
+            f"{folder} holds a V run with another config; use a new folder or the same settings"
+        )
+    return min(int(meta["epoch"]), config.epochs)
+
+
+def train_vae(
+    config: VisionConfig,
+    folder: str | Path,
+    data: VisionData | None = None,
+    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+) -> dict[str, float]:
+    """Train V as the paper, resuming from ``folder`` if it holds an unfinished run.
+
+    Returns the last epoch's metrics. ``on_epoch(epoch, row)`` is called after every epoch.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    done = _resume_point(folder, config)
+    atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
+    data = data if data is not None else make_data(config)
+
+    torch.manual_seed(config.seed)
+    vae = ConvVAE(config.latent_dim).to(memory_format=torch.channels_last)
+    optimizer = torch.optim.Adam(vae.parameters(), lr=config.lr)
+    generator = torch.Generator().manual_seed(config.seed)
+    if done > 0:
+        tensors = load_tensors(folder / "vae.safetensors", "V checkpoint")
+        load_state_dict_strict(
+            vae, {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}, "V checkpoint"
+        )
+        optimizer_from_tensors(optimizer, tensors, "optim")
+        generator.set_state(tensors["rng.torch"])
+    logger = MetricsLogger(folder, resume_step=done)
+    row: dict[str, float] = {}
+    n = len(data.train_images)
+    for epoch in range(done + 1, config.epochs + 1):
+        start = time.perf_counter()
+        sums, count = np.zeros(3), 0
+        order = torch.randperm(n, generator=generator)
+        for first in range(0, n - config.batch_size + 1, config.batch_size):
+            index = order[first : first + config.batch_size].numpy()
+            x = to_input(data.train_images[np.sort(index)]).contiguous(
+                memory_format=torch.channels_last
+            )
+            loss = vae.loss(x, config.beta, generator)
+            optimizer.zero_grad(set_to_none=True)
+            loss.total.backward()
+            optimizer.step()
+            sums += len(x) * np.array([float(v) for v in loss])
+            count += len(x)
+        train = sums / count
+        test = _evaluate(vae, data.test_images, config.beta, config.seed + 1)
+        for name, value in zip(("loss", "reconstruction", "kl"), train, strict=True):
+            logger.record(f"train/{name}", value)
+        for name, value in test.items():
+            logger.record(f"test/{name}", value)
+        logger.record("time/epoch_seconds", time.perf_counter() - start)
+        extra = {**optimizer_to_tensors(optimizer, "optim"), "rng.torch": generator.get_state()}
+        save_vae(folder, vae, config, epoch, extra)
+        row = logger.dump(epoch)
+        if on_epoch is not None:
+            on_epoch(epoch, row)
+    logger.close()
+    if done < config.epochs or not (folder / "classifier.safetensors").is_file():
+        fit_classifier(vae, config, data, folder)
+    return row
+
+
+def fit_classifier(
+    vae: ConvVAE, config: VisionConfig, data: VisionData, folder: Path
+) -> LatentClassifier:
+    """Fit the latent classifier on encoded means of training images and save it."""
+    n = min(config.n_classifier_fit, len(data.train_images))
+    mu, _ = encode_images(vae, data.train_images[:n])
+    classifier = LatentClassifier(config.latent_dim)
+    classifier.fit(mu, torch.as_tensor(data.train_states[:n]), seed=config.seed)
+    save_tensors(folder / "classifier.safetensors", classifier.state_dict())
+    return classifier
