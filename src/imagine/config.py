@@ -52,6 +52,9 @@ class VisionConfig:
     """Training images whose encoded means fit the latent classifier."""
     n_classifier_test: int = 10_000
     """Fresh images (new seed) on which the latent classifier is scored."""
+    dataset: str | None = None
+    """A file from `imagine dataset` to train on (e.g. made from your own fragment photos);
+    None synthesizes n_train + n_test images with the procedural renderer."""
 
     def __post_init__(self) -> None:
         positive = ("latent_dim", "lr", "batch_size", "epochs", "n_train", "n_test")

@@ -34,8 +34,8 @@ from imagine.checkpoint import (
     write_json,
 )
 from imagine.config import VisionConfig, from_dict
-from imagine.dataset import DatasetConfig, synthesize
-from imagine.errors import CheckpointError
+from imagine.dataset import DatasetConfig, load_dataset, synthesize
+from imagine.errors import CheckpointError, ConfigError
 from imagine.latent_classifier import LatentClassifier
 from imagine.metrics import MetricsLogger
 from imagine.vision import ConvVAE, encode_images, to_input
@@ -52,12 +52,35 @@ class VisionData:
 
 
 def make_data(config: VisionConfig) -> VisionData:
-    """The synthesized training and test images of a config (deterministic)."""
-    arrays = synthesize(DatasetConfig(config.n_train, config.n_test, config.data_seed))
+    """The training and test images of a config: its dataset file, or synthesized
+    (deterministically) from the procedural renderer."""
+    if config.dataset is not None:
+        arrays, made = load_dataset(config.dataset)
+        if (made.n_train, made.n_test) != (config.n_train, config.n_test):
+            raise ConfigError(
+                f"{config.dataset} holds {made.n_train} + {made.n_test} images but the config "
+                f"says {config.n_train} + {config.n_test}; use with_dataset(config)"
+            )
+    else:
+        arrays = synthesize(DatasetConfig(config.n_train, config.n_test, config.data_seed))
     return VisionData(
         arrays["train_images"], arrays["train_macrostates"],
         arrays["test_images"], arrays["test_macrostates"],
     )  # fmt: skip
+
+
+def with_dataset(config: VisionConfig, path: str | Path) -> VisionConfig:
+    """``config`` set to train on the dataset file at ``path`` (its sizes and seed)."""
+    _, made = load_dataset(path)
+    return dataclasses.replace(
+        config, dataset=str(path), n_train=made.n_train, n_test=made.n_test, data_seed=made.seed,
+        n_classifier_fit=min(config.n_classifier_fit, made.n_train),
+    )  # fmt: skip
+
+
+def dataset_fragments(config: VisionConfig) -> str | None:
+    """The fragment folder the images of ``config`` came from (None: procedural)."""
+    return None if config.dataset is None else load_dataset(config.dataset)[1].fragments
 
 
 def _evaluate(vae: ConvVAE, images: np.ndarray, beta: float, seed: int) -> dict[str, float]:
@@ -163,7 +186,7 @@ def train_vae(
             optimizer.zero_grad(set_to_none=True)
             loss.total.backward()
             optimizer.step()
-            sums += len(x) * np.array([float(v) for v in loss])
+            sums += len(x) * np.array([float(v.detach()) for v in loss])
             count += len(x)
         train = sums / count
         test = _evaluate(vae, data.test_images, config.beta, config.seed + 1)

@@ -42,8 +42,8 @@ def _transform(points: np.ndarray, angle: float, scale: float, center: tuple[flo
 def _background(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     """A table top under uneven light: a base gray level with a linear gradient."""
     h, w = shape
-    base = rng.uniform(70, 110)
-    gy, gx = rng.uniform(-12, 12, size=2)
+    base = rng.uniform(80, 100)
+    gy, gx = rng.uniform(-8, 8, size=2)
     y = np.linspace(-0.5, 0.5, h)[:, None]
     x = np.linspace(-0.5, 0.5, w)[None, :]
     return base + gy * y + gx * x
@@ -56,7 +56,7 @@ def _finish(rng: np.random.Generator, drawing: Image.Image, background: np.ndarr
     rgba = np.asarray(small, dtype=np.float64)
     value, alpha = rgba[..., 0], rgba[..., 1] / 255.0
     img = alpha * value + (1 - alpha) * background
-    img = img * rng.uniform(0.85, 1.15) + rng.uniform(-10, 10)  # exposure and offset
+    img = img * rng.uniform(0.94, 1.06) + rng.uniform(-4, 4)  # exposure and offset
     blurred = Image.fromarray(np.clip(np.rint(img), 0, 255).astype(np.uint8)).filter(
         ImageFilter.GaussianBlur(radius=rng.uniform(0.0, 1.0))
     )
@@ -108,8 +108,8 @@ def cube_fragment(seed: int, cube: int, direction: int, k: int) -> np.ndarray:
     side_center = (center[0], center[1] + 0.12 * size)
     pen.polygon(_transform(_SQUARE, tilt, size, side_center), fill=(int(side), 255))
     pen.polygon(_transform(_SQUARE, tilt, size, center), fill=(int(face), 255))
-    stroke = rng.uniform(0.16, 0.24)
-    arrow = _arrow_polygon(stroke, head=rng.uniform(0.50, 0.62))
+    stroke = rng.uniform(0.20, 0.28)
+    arrow = _arrow_polygon(stroke, head=rng.uniform(0.58, 0.70))
     ink = int(rng.uniform(10, 55))
     angle = direction * math.pi / 2 + tilt
     pen.polygon(_transform(arrow, angle, size * rng.uniform(0.92, 1.05), center), fill=(ink, 255))

@@ -1,0 +1,113 @@
+"""`imagine vae report`: how good V is, in numbers and pictures.
+
+Writes ``reconstructions.png`` (test images beside their reconstructions, each observation shown
+as its three strips side by side, as the scene), ``traversals.png`` (one row per latent
+dimension, that dimension swept from -3 to +3 around a test image's mean) and ``report.json``
+with the test reconstruction loss and KL per image and the latent classifier's accuracy on fresh
+test images (a seed V never saw), per cube arrow and for the hand.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+
+from imagine.checkpoint import write_json
+from imagine.config import VisionConfig
+from imagine.dataset import DatasetConfig, synthesize
+from imagine.latent_classifier import LatentClassifier
+from imagine.vision import ConvVAE, encode_images, to_input
+
+
+def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
+    """An observation, (3, 64, 64) in [0, 1] or uint8 (64, 64, 3), as its strips side by side."""
+    if isinstance(x, torch.Tensor):
+        x = x.detach().cpu().numpy()
+    if x.shape[0] == 3:
+        x = np.moveaxis(x, 0, -1)
+    x = x.astype(np.float64) / (255.0 if x.dtype == np.uint8 or x.max() > 1.5 else 1.0)
+    return np.concatenate([x[..., 0], x[..., 1], x[..., 2]], axis=1)
+
+
+def reconstructions_png(vae: ConvVAE, images: np.ndarray, out: Path, n: int = 8) -> Path:
+    with torch.no_grad():
+        vae.eval()
+        mu, _ = vae.encode(to_input(images[:n]))
+        recon = vae.decode(mu)
+    fig = Figure(figsize=(8, 1.0 * n), layout="constrained")
+    axes = fig.subplots(n, 2, squeeze=False)
+    for i in range(n):
+        for j, (img, title) in enumerate(((images[i], "test image"), (recon[i], "reconstruction"))):
+            axes[i, j].imshow(as_scene(img), cmap="gray", vmin=0, vmax=1)
+            axes[i, j].axis("off")
+            if i == 0:
+                axes[i, j].set_title(title)
+    fig.savefig(out, dpi=80)
+    return out
+
+
+def traversals_png(vae: ConvVAE, image: np.ndarray, out: Path, steps: int = 7) -> Path:
+    with torch.no_grad():
+        vae.eval()
+        mu, _ = vae.encode(to_input(image[None]))
+        values = torch.linspace(-3, 3, steps)
+        rows = []
+        for dim in range(vae.latent_dim):
+            z = mu.repeat(steps, 1)
+            z[:, dim] = values
+            rows.append(vae.decode(z))
+    fig = Figure(figsize=(1.9 * steps, 0.75 * vae.latent_dim + 0.5), layout="constrained")
+    axes = fig.subplots(vae.latent_dim, steps, squeeze=False)
+    for dim, row in enumerate(rows):
+        for k in range(steps):
+            axes[dim, k].imshow(as_scene(row[k]), cmap="gray", vmin=0, vmax=1)
+            axes[dim, k].set_xticks([])
+            axes[dim, k].set_yticks([])
+            if k == 0:
+                axes[dim, k].set_ylabel(f"z{dim}")
+            if dim == 0:
+                axes[dim, k].set_title(f"{float(values[k]):+.1f}")
+    fig.suptitle("latent traversals: each row sweeps one dimension of z around a test image")
+    fig.savefig(out, dpi=80)
+    return out
+
+
+def fresh_test_set(config: VisionConfig, fragments: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """Images V never saw: the same fragments, another seed."""
+    arrays = synthesize(
+        DatasetConfig(
+            n_train=config.n_classifier_test, n_test=1, seed=config.data_seed + 1,
+            fragments=fragments,
+        )
+    )  # fmt: skip
+    return arrays["train_images"], arrays["train_macrostates"]
+
+
+def vision_report(
+    vae: ConvVAE,
+    classifier: LatentClassifier,
+    config: VisionConfig,
+    test_images: np.ndarray,
+    test_loss: dict[str, float],
+    folder: Path,
+    fragments: str | None = None,
+) -> dict[str, Any]:
+    """Write the PNGs and report.json into ``folder``; return the numbers."""
+    images, states = fresh_test_set(config, fragments)
+    mu, _ = encode_images(vae, images)
+    accuracy = classifier.accuracy(mu, torch.as_tensor(states))
+    report = {
+        "test_reconstruction_per_image": test_loss["reconstruction"],
+        "test_kl_per_image": test_loss["kl"],
+        "test_loss_per_image": test_loss["loss"],
+        "classifier_accuracy": accuracy,
+        "classifier_test_images": len(images),
+    }
+    reconstructions_png(vae, test_images, folder / "reconstructions.png")
+    traversals_png(vae, test_images[0], folder / "traversals.png")
+    write_json(folder / "report.json", report)
+    return report
