@@ -25,6 +25,10 @@ app = typer.Typer(
 )
 env_app = typer.Typer(help="The GesturePuzzle environment.", no_args_is_help=True)
 app.add_typer(env_app, name="env")
+vae_app = typer.Typer(
+    help="V: the beta-VAE that encodes scenes into latent states.", no_args_is_help=True
+)
+app.add_typer(vae_app, name="vae")
 console = Console(stderr=True)
 
 
@@ -118,6 +122,87 @@ def dataset(
     path = save_dataset(out, arrays, config)
     rate = (n_train + n_test) / seconds
     console.print(f"wrote {path}: {n_train} train + {n_test} test images, {rate:,.0f} images/s")
+
+
+PresetOption = Annotated[str, typer.Option(help="Settings: paper, fast (default) or smoke.")]
+
+
+@vae_app.command("train")
+def vae_train(
+    out: Annotated[
+        Path, typer.Option(help="Run folder (resumed if it holds an unfinished run).")
+    ] = Path("runs/vae"),
+    preset: PresetOption = "fast",
+    epochs: Annotated[int | None, typer.Option(help="Override the preset's epochs.")] = None,
+    seed: Annotated[
+        int | None, typer.Option(help="Override the seed of weights and noise.")
+    ] = None,
+    dataset: Annotated[
+        Path | None, typer.Option(help="Train on a file from `imagine dataset` instead.")
+    ] = None,
+    device: Annotated[str, typer.Option(help="auto (CUDA if present), cpu or cuda.")] = "auto",
+) -> None:
+    """Train V on synthesized images (or a dataset file), then fit the latent classifier.
+    Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume."""
+    from imagine.config import vision_preset
+    from imagine.vision_training import train_vae, with_dataset
+
+    overrides = {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
+    config = vision_preset(preset, **overrides)
+    if dataset is not None:
+        config = with_dataset(config, dataset)
+    start = time.perf_counter()
+    columns = (TextColumn("training V"), BarColumn(), MofNCompleteColumn())
+    with Progress(
+        *columns, TextColumn("{task.fields[loss]}"), TimeRemainingColumn(), console=console
+    ) as bar:
+        task_id = bar.add_task("epochs", total=config.epochs, loss="")
+
+        def on_epoch(epoch: int, row: dict[str, float]) -> None:
+            loss = f"test rec {row['test/reconstruction']:.1f} kl {row['test/kl']:.2f}"
+            bar.update(task_id, completed=epoch, loss=loss)
+
+        train_vae(config, out, on_epoch=on_epoch, device=device)
+    console.print(
+        f"V trained in {out} ({time.perf_counter() - start:.0f} s); next: imagine vae report {out}"
+    )
+
+
+@vae_app.command("report")
+def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> None:
+    """Write reconstructions.png and traversals.png into RUN and print V's quality numbers:
+    test reconstruction loss and KL per image, latent-classifier accuracy on fresh images."""
+    from rich.table import Table
+
+    from imagine.vision_report import vision_report
+    from imagine.vision_training import (
+        dataset_fragments,
+        evaluate_vae,
+        load_classifier,
+        load_vae,
+        make_data,
+    )
+
+    vae, config, epoch = load_vae(run)
+    classifier = load_classifier(run, config.latent_dim)
+    data = make_data(config)
+    test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
+    report = vision_report(
+        vae, classifier, config, data.test_images, test_loss, run, dataset_fragments(config)
+    )
+    table = Table(title=f"V after {epoch} epochs ({run})")
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    table.add_row(
+        "test reconstruction (BCE per image)", f"{report['test_reconstruction_per_image']:.1f}"
+    )
+    table.add_row("test KL per image (nats)", f"{report['test_kl_per_image']:.2f}")
+    for name, value in report["classifier_accuracy"].items():
+        table.add_row(f"classifier accuracy: {name}", f"{100 * value:.2f}%")
+    Console().print(table)
+    console.print(
+        f"wrote {run / 'reconstructions.png'}, {run / 'traversals.png'}, {run / 'report.json'}"
+    )
 
 
 def main() -> None:

@@ -36,6 +36,10 @@ class VisionConfig:
     """Weight of the KL term in the loss (paper: beta = 4)."""
     lr: float = 5e-4
     """Adam learning rate (paper: 0.0005)."""
+    beta_warmup_steps: int = 0
+    """Updates over which the KL weight rises linearly from 0 to beta (KL annealing, Bowman et
+    al. 2016). Paper: 0, beta from the start. With few updates, beta = 4 from the start lets
+    the posterior collapse for hundreds of updates before any factor is encoded."""
     batch_size: int = 2000
     """Images per update (paper: 2000)."""
     epochs: int = 1000
@@ -61,6 +65,10 @@ class VisionConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"vision.{name} must be positive, got {getattr(self, name)}")
+        if self.beta_warmup_steps < 0:
+            raise ConfigError(
+                f"vision.beta_warmup_steps must be >= 0, got {self.beta_warmup_steps}"
+            )
         if self.beta < 0:
             raise ConfigError(f"vision.beta must be >= 0, got {self.beta}")
         if self.batch_size > self.n_train:
@@ -74,13 +82,16 @@ class VisionConfig:
 
 VISION_PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
-    # fast: 2-core CPU in minutes. Fewer images and epochs and a smaller batch (more updates per
-    # epoch); the architecture, latent size, beta and learning rate are the paper's.
+    # fast: a 2-core CPU in about 4 minutes. 20,000 images, 3 epochs of batch 32 (1,875
+    # updates instead of the paper's 50,000), lr 1e-3 and the KL weight annealed over the first
+    # 1,000 updates; the architecture, latent size and beta are the paper's.
     "fast": {
         "n_train": 20_000,
         "n_test": 2_000,
-        "epochs": 8,
-        "batch_size": 100,
+        "epochs": 3,
+        "batch_size": 32,
+        "lr": 1e-3,
+        "beta_warmup_steps": 1_000,
         "n_classifier_fit": 10_000,
     },
     "smoke": {
@@ -88,6 +99,8 @@ VISION_PRESETS: dict[str, dict[str, Any]] = {
         "n_test": 128,
         "epochs": 2,
         "batch_size": 64,
+        "lr": 1e-3,
+        "beta_warmup_steps": 4,
         "n_classifier_fit": 512,
         "n_classifier_test": 256,
     },

@@ -63,7 +63,7 @@ class LatentClassifier(nn.Module):
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            losses.append(float(loss))
+            losses.append(float(loss.detach()))
         return losses
 
     def accuracy(self, z: torch.Tensor, states: torch.Tensor) -> dict[str, float]:

@@ -22,6 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 IMAGE_SHAPE = (3, 64, 64)
+INITIAL_LOG_SIGMA = -3.0
 
 
 class VAELoss(NamedTuple):
@@ -56,6 +57,11 @@ class ConvVAE(nn.Module):
         )  # fmt: skip
         self.fc_mu = nn.Linear(1024, latent_dim)
         self.fc_log_sigma = nn.Linear(1024, latent_dim)
+        # Start with sigma ~ 0.05 rather than ~ 1: at initialization mu is small, and unit noise
+        # would drown it, teaching the decoder to ignore z (the posterior collapses for
+        # hundreds of updates). The KL term then grows sigma where z carries nothing.
+        nn.init.constant_(self.fc_log_sigma.bias, INITIAL_LOG_SIGMA)
+        nn.init.normal_(self.fc_log_sigma.weight, std=1e-3)
         self.fc_decode = nn.Linear(latent_dim, 1024)
         self.decoder = nn.Sequential(
             nn.Unflatten(1, (1024, 1, 1)),

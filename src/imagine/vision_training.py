@@ -51,6 +51,15 @@ class VisionData:
     test_states: np.ndarray
 
 
+def resolve_device(device: str) -> torch.device:
+    """``auto`` picks CUDA when there is one; ``cuda`` without one is a config error."""
+    if device not in ("auto", "cpu", "cuda"):
+        raise ConfigError(f"unknown device {device!r}; choose auto, cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device 'cuda' was asked for but no CUDA device is available")
+    return torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
+
+
 def make_data(config: VisionConfig) -> VisionData:
     """The training and test images of a config: its dataset file, or synthesized
     (deterministically) from the procedural renderer."""
@@ -83,14 +92,16 @@ def dataset_fragments(config: VisionConfig) -> str | None:
     return None if config.dataset is None else load_dataset(config.dataset)[1].fragments
 
 
-def _evaluate(vae: ConvVAE, images: np.ndarray, beta: float, seed: int) -> dict[str, float]:
+def evaluate_vae(vae: ConvVAE, images: np.ndarray, beta: float, seed: int) -> dict[str, float]:
     """Mean test loss per image, with a fixed noise seed so epochs compare fairly."""
-    generator = torch.Generator().manual_seed(seed)
+    device = next(vae.parameters()).device
+    generator = torch.Generator(device).manual_seed(seed)
     vae.eval()
     totals = np.zeros(3)
     with torch.no_grad():
         for start in range(0, len(images), 1000):
-            x = to_input(images[start : start + 1000]).contiguous(memory_format=torch.channels_last)
+            x = to_input(images[start : start + 1000]).to(device)
+            x = x.contiguous(memory_format=torch.channels_last)
             loss = vae.loss(x, beta, generator)
             totals += len(x) * np.array([float(v) for v in loss])
     vae.train()
@@ -148,11 +159,14 @@ def train_vae(
     folder: str | Path,
     data: VisionData | None = None,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+    device: str = "auto",
 ) -> dict[str, float]:
     """Train V as the paper, resuming from ``folder`` if it holds an unfinished run.
 
     Returns the last epoch's metrics. ``on_epoch(epoch, row)`` is called after every epoch.
+    ``device``: ``auto`` (CUDA when there is one), ``cpu`` or ``cuda``.
     """
+    dev = resolve_device(device)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     done = _resume_point(folder, config)
@@ -160,47 +174,58 @@ def train_vae(
     data = data if data is not None else make_data(config)
 
     torch.manual_seed(config.seed)
-    vae = ConvVAE(config.latent_dim).to(memory_format=torch.channels_last)
+    vae = ConvVAE(config.latent_dim).to(dev, memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(vae.parameters(), lr=config.lr)
-    generator = torch.Generator().manual_seed(config.seed)
+    shuffle = torch.Generator().manual_seed(config.seed)  # the order of the images
+    noise = torch.Generator(dev).manual_seed(config.seed + 1)  # eps of the reparameterization
     if done > 0:
         tensors = load_tensors(folder / "vae.safetensors", "V checkpoint")
         load_state_dict_strict(
             vae, {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}, "V checkpoint"
         )
         optimizer_from_tensors(optimizer, tensors, "optim")
-        generator.set_state(tensors["rng.torch"])
+        shuffle.set_state(tensors["rng.shuffle"])
+        noise.set_state(tensors["rng.noise"])
     logger = MetricsLogger(folder, resume_step=done)
     row: dict[str, float] = {}
     n = len(data.train_images)
     for epoch in range(done + 1, config.epochs + 1):
         start = time.perf_counter()
         sums, count = np.zeros(3), 0
-        order = torch.randperm(n, generator=generator)
-        for first in range(0, n - config.batch_size + 1, config.batch_size):
+        order = torch.randperm(n, generator=shuffle)
+        batches = n // config.batch_size
+        for b in range(batches):
+            step = (epoch - 1) * batches + b  # updates before this one, over the whole run
+            beta = config.beta * min(1.0, step / max(config.beta_warmup_steps, 1))
+            first = b * config.batch_size
             index = order[first : first + config.batch_size].numpy()
-            x = to_input(data.train_images[np.sort(index)]).contiguous(
-                memory_format=torch.channels_last
-            )
-            loss = vae.loss(x, config.beta, generator)
+            x = to_input(data.train_images[np.sort(index)])
+            x = x.to(dev, non_blocking=True).contiguous(memory_format=torch.channels_last)
+            loss = vae.loss(x, beta, noise)
             optimizer.zero_grad(set_to_none=True)
             loss.total.backward()
             optimizer.step()
             sums += len(x) * np.array([float(v.detach()) for v in loss])
             count += len(x)
         train = sums / count
-        test = _evaluate(vae, data.test_images, config.beta, config.seed + 1)
+        test = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
         for name, value in zip(("loss", "reconstruction", "kl"), train, strict=True):
             logger.record(f"train/{name}", value)
         for name, value in test.items():
             logger.record(f"test/{name}", value)
+        logger.record("train/beta", beta)
         logger.record("time/epoch_seconds", time.perf_counter() - start)
-        extra = {**optimizer_to_tensors(optimizer, "optim"), "rng.torch": generator.get_state()}
+        extra = {
+            **optimizer_to_tensors(optimizer, "optim"),
+            "rng.shuffle": shuffle.get_state(),
+            "rng.noise": noise.get_state(),
+        }
         save_vae(folder, vae, config, epoch, extra)
         row = logger.dump(epoch)
         if on_epoch is not None:
             on_epoch(epoch, row)
     logger.close()
+    vae.cpu()
     if done < config.epochs or not (folder / "classifier.safetensors").is_file():
         fit_classifier(vae, config, data, folder)
     return row

@@ -42,7 +42,7 @@ def _transform(points: np.ndarray, angle: float, scale: float, center: tuple[flo
 def _background(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     """A table top under uneven light: a base gray level with a linear gradient."""
     h, w = shape
-    base = rng.uniform(80, 100)
+    base = rng.uniform(60, 80)
     gy, gx = rng.uniform(-8, 8, size=2)
     y = np.linspace(-0.5, 0.5, h)[:, None]
     x = np.linspace(-0.5, 0.5, w)[None, :]
@@ -82,7 +82,7 @@ def _arrow_polygon(stroke: float, head: float) -> np.ndarray:
 
 _SQUARE = np.array([(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)])
 # Each cube has its own paint, so the three pools differ a little, as real cubes would.
-_CUBE_SHADE = (222.0, 200.0, 236.0)
+_CUBE_SHADE = (246.0, 242.0, 250.0)
 
 
 def cube_fragment(seed: int, cube: int, direction: int, k: int) -> np.ndarray:
@@ -95,13 +95,13 @@ def cube_fragment(seed: int, cube: int, direction: int, k: int) -> np.ndarray:
     drawing = Image.new("LA", (w * ss, h * ss), (0, 0))
     pen = ImageDraw.Draw(drawing)
 
-    size = 62 * rng.uniform(0.9, 1.1) * ss
+    size = 74 * rng.uniform(0.97, 1.03) * ss
     center = (
-        (w / 2 + rng.uniform(-5, 5)) * ss,
-        (h / 2 - 4 + rng.uniform(-5, 5)) * ss,
+        (w / 2 + rng.uniform(-2, 2)) * ss,
+        (h / 2 - 4 + rng.uniform(-2, 2)) * ss,
     )
-    tilt = math.radians(rng.uniform(-8, 8))
-    face = float(np.clip(_CUBE_SHADE[cube] + rng.uniform(-18, 12), 0, 255))
+    tilt = math.radians(rng.uniform(-4, 4))
+    face = float(np.clip(_CUBE_SHADE[cube] + rng.uniform(-6, 6), 0, 255))
     side = face * rng.uniform(0.5, 0.65)
 
     # The side of the cube facing the camera, then its top face with the arrow.
@@ -110,7 +110,7 @@ def cube_fragment(seed: int, cube: int, direction: int, k: int) -> np.ndarray:
     pen.polygon(_transform(_SQUARE, tilt, size, center), fill=(int(face), 255))
     stroke = rng.uniform(0.20, 0.28)
     arrow = _arrow_polygon(stroke, head=rng.uniform(0.58, 0.70))
-    ink = int(rng.uniform(10, 55))
+    ink = int(rng.uniform(0, 25))
     angle = direction * math.pi / 2 + tilt
     pen.polygon(_transform(arrow, angle, size * rng.uniform(0.92, 1.05), center), fill=(ink, 255))
     return _finish(rng, drawing, background)
@@ -126,13 +126,13 @@ def hand_fragment(seed: int, pointed: int, k: int) -> np.ndarray:
     pen = ImageDraw.Draw(drawing)
 
     cube_w = CUBE_SHAPE[1]
-    tip_x = cube_w * (pointed + 0.5) + rng.uniform(-8, 8)
+    tip_x = cube_w * (pointed + 0.5) + rng.uniform(-3, 3)
     # The human sits at the middle of the bottom edge: the arm leans from there toward the cube.
     base_x = tip_x + (w / 2 - tip_x) * rng.uniform(0.1, 0.3) + rng.uniform(-6, 6)
     fist_y = h * rng.uniform(0.55, 0.68)
-    skin = int(rng.uniform(150, 205))
+    skin = int(rng.uniform(195, 235))
     sleeve = int(np.clip(skin - rng.uniform(60, 110), 0, 255))
-    arm_w = rng.uniform(22, 30)
+    arm_w = rng.uniform(30, 38)
 
     def px(x: float, y: float) -> tuple[float, float]:
         return (x * ss, y * ss)
@@ -144,7 +144,7 @@ def hand_fragment(seed: int, pointed: int, k: int) -> np.ndarray:
     pen.line([px(base_x, h + 6), px(*elbow)], fill=(sleeve, 255), width=int(arm_w * ss))
     pen.line([px(*elbow), px(*wrist)], fill=(skin, 255), width=int(arm_w * 0.8 * ss))
     # Fist: palm, curled fingers as knuckle bumps and a thumb; the index finger points up.
-    fist_r = arm_w * rng.uniform(0.5, 0.6)
+    fist_r = arm_w * rng.uniform(0.65, 0.75)
     fx, fy = tip_x, fist_y
     pen.ellipse(
         [px(fx - fist_r, fy - fist_r * 0.7), px(fx + fist_r, fy + fist_r * 0.8)], fill=(skin, 255)
@@ -168,9 +168,9 @@ def hand_fragment(seed: int, pointed: int, k: int) -> np.ndarray:
         ],
         fill=(skin - 6, 255),
     )
-    finger_w = rng.uniform(7, 10)
+    finger_w = rng.uniform(11, 14)
     tip_y = rng.uniform(1.0, 5.0)
-    lean = rng.uniform(-4, 4)
+    lean = rng.uniform(-2, 2)
     pen.line(
         [px(fx, fy - fist_r * 0.5), px(fx + lean, tip_y + finger_w / 2)],
         fill=(skin, 255),
