@@ -31,6 +31,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/env_speed.py
+	$(BIN)/python benchmarks/vae_speed.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache
