@@ -1,0 +1,123 @@
+"""M: the MDN's likelihood and sampling, the r- and d-networks, and M's update."""
+
+import math
+
+import pytest
+import torch
+
+from imagine.world_model import (
+    MDN,
+    Mixture,
+    RewardNet,
+    TerminalNet,
+    WorldModel,
+    log_cosh,
+    mixture_nll,
+)
+
+
+def test_mixture_nll_against_a_hand_computed_value():
+    mixture = Mixture(
+        log_pi=torch.log(torch.tensor([[0.25, 0.75]])),
+        mu=torch.tensor([[[0.0], [1.0]]]),
+        sigma=torch.tensor([[[1.0], [2.0]]]),
+    )
+    x = 0.5
+    p = 0.25 * math.exp(-0.5 * x**2) / math.sqrt(2 * math.pi) + 0.75 * math.exp(
+        -0.5 * ((x - 1) / 2) ** 2
+    ) / (2 * math.sqrt(2 * math.pi))
+    assert float(mixture_nll(mixture, torch.tensor([[x]]))) == pytest.approx(-math.log(p), rel=1e-6)
+
+
+def test_mixture_nll_is_finite_far_from_every_component():
+    mixture = Mixture(torch.log(torch.tensor([[0.5, 0.5]])), torch.zeros(1, 2, 3),
+                      torch.full((1, 2, 3), 1e-3))  # fmt: skip
+    value = mixture_nll(mixture, torch.full((1, 3), 100.0))
+    assert torch.isfinite(value).all() and float(value) > 1e9
+
+
+def test_mdn_architecture_and_shapes():
+    mdn = MDN(latent_dim=8)
+    hidden = [m for m in mdn.body if isinstance(m, torch.nn.Linear)]
+    assert [m.out_features for m in hidden] == [256, 256, 256]
+    assert sum(isinstance(m, torch.nn.Dropout) for m in mdn.body) == 3
+    m = mdn(torch.randn(4, 8), torch.tensor([0, 1, 5, 2]))
+    assert m.log_pi.shape == (4, 5) and m.mu.shape == (4, 5, 8) and (m.sigma > 0).all()
+    assert torch.allclose(m.log_pi.exp().sum(-1), torch.ones(4))
+
+
+def test_mdn_learns_a_two_mode_next_state_distribution():
+    """From one state and action the next state is +1 or -1 with equal odds: both modes are
+    sampled afterwards, and the most likely state is one of them, not their mean."""
+    torch.manual_seed(0)
+    mdn = MDN(latent_dim=1, n_actions=2)
+    optimizer = torch.optim.Adam(mdn.parameters(), lr=1e-3)
+    g = torch.Generator().manual_seed(0)
+    z, a = torch.zeros(256, 1), torch.zeros(256, dtype=torch.int64)
+    for _ in range(600):
+        sign = torch.randint(2, (256, 1), generator=g) * 2.0 - 1.0
+        target = sign + 0.05 * torch.randn(256, 1, generator=g)
+        loss = mdn.loss(z, a, target)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    mdn.eval()
+    samples = mdn.sample(torch.zeros(2000, 1), torch.zeros(2000, dtype=torch.int64), g)
+    near_plus = float(((samples - 1).abs() < 0.3).float().mean())
+    near_minus = float(((samples + 1).abs() < 0.3).float().mean())
+    assert near_plus > 0.3 and near_minus > 0.3 and near_plus + near_minus > 0.9
+    best = mdn.most_likely(torch.zeros(1, 1), torch.zeros(1, dtype=torch.int64))
+    assert abs(abs(float(best)) - 1) < 0.2
+
+
+def rule(z):
+    """A known rule: states with z0 > 1 are goals (+50), z0 < -1 illegal (-5), else -1."""
+    reward = torch.where(z[:, 0] > 1, 50.0, torch.where(z[:, 0] < -1, -5.0, -1.0))
+    return reward, (z[:, 0].abs() > 1).float()
+
+
+def test_r_and_d_networks_learn_a_known_rule():
+    torch.manual_seed(0)
+    r_net, d_net = RewardNet(2), TerminalNet(2)
+    opt_r = torch.optim.Adam(r_net.parameters(), lr=1e-3)
+    opt_d = torch.optim.Adam(d_net.parameters(), lr=1e-3)
+    for _ in range(400):
+        z = torch.randn(256, 2) * 1.5
+        reward, done = rule(z)
+        for opt, loss in ((opt_r, r_net.loss(z, reward)), (opt_d, d_net.loss(z, done))):
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    r_net.eval()
+    d_net.eval()
+    z = torch.randn(2000, 2) * 1.5
+    z = z[(z[:, 0].abs() - 1).abs() > 0.15]  # away from the boundaries
+    reward, done = rule(z)
+    assert float((d_net.is_terminal(z).float() == done).float().mean()) > 0.97
+    with torch.no_grad():
+        assert float(((r_net(z) - reward).abs() < 3).float().mean()) > 0.95
+
+
+def test_log_cosh_is_stable():
+    x = torch.tensor([0.0, 1.0, -3.0, 1000.0])
+    expected = torch.log(torch.cosh(x[:3].double())).float()
+    assert torch.allclose(log_cosh(x[:3]), expected, atol=1e-6)
+    assert float(log_cosh(x[3:])) == pytest.approx(1000 - math.log(2))
+
+
+def test_world_model_update_resamples_latents_and_lowers_losses():
+    torch.manual_seed(0)
+    model = WorldModel(latent_dim=4)
+    g = torch.Generator().manual_seed(0)
+    n = 512
+    mu = torch.randn(n, 4)
+    action = torch.randint(6, (n,))
+    next_mu = mu.roll(1, dims=1) + (action[:, None] == 0).float()  # a known transition
+    reward, done = rule(next_mu)
+    batch = {"mu": mu, "sigma": torch.full((n, 4), 0.01), "action": action, "next_mu": next_mu,
+             "next_sigma": torch.full((n, 4), 0.01), "reward": reward, "done": done}  # fmt: skip
+    first = model.update(batch, g)
+    for _ in range(150):
+        last = model.update(batch, g)
+    assert set(first) == {"mdn", "reward", "terminal"}
+    assert all(last[k] < first[k] for k in first)
