@@ -205,6 +205,78 @@ def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> 
     )
 
 
+class MethodName(StrEnum):
+    baseline = "baseline"
+    augmented = "augmented"
+
+
+@app.command("train")
+def train_agent(
+    out: Annotated[
+        Path, typer.Argument(help="Run folder (resumed if it holds an unfinished run).")
+    ],
+    task: Annotated[TaskName, typer.Option(help="original or hard.")] = TaskName.original,
+    method: Annotated[
+        MethodName, typer.Option(help="baseline or augmented.")
+    ] = MethodName.augmented,
+    episodes: Annotated[int | None, typer.Option(help="Training episodes.")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
+    preset: PresetOption = "fast",
+    vae: Annotated[Path | None, typer.Option(help="V run folder (imagine vae train).")] = None,
+    oracle: Annotated[
+        bool, typer.Option(help="Feed C and M the true macrostate's embedding.")
+    ] = False,
+    threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
+) -> None:
+    """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
+    TensorBoard) and checkpoints. Run it again to resume."""
+    from imagine.agent import train
+    from imagine.config import agent_preset
+
+    overrides: dict = {"task": task.value, "method": method.value, "seed": seed,
+                       "encoder": "oracle" if oracle else "vae",
+                       "vae_run": None if vae is None else str(vae)}  # fmt: skip
+    if episodes is not None:
+        overrides["episodes"] = episodes
+    config = agent_preset(preset, **overrides)
+    start = time.perf_counter()
+    with Progress(TextColumn(f"{config.method} {config.task} seed {config.seed}"), BarColumn(),
+                  MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
+        task_id = bar.add_task("episodes", total=config.episodes)
+        agent = train(config, out, on_episode=lambda e: bar.update(task_id, completed=e),
+                      threads=threads)  # fmt: skip
+    seconds = time.perf_counter() - start
+    done = f"{agent.episode} episodes, {agent.t} time steps, {seconds:.0f} s"
+    console.print(f"trained {out}: {done}; next: imagine evaluate {out}")
+
+
+@app.command("evaluate")
+def evaluate_agent(
+    run: Annotated[Path, typer.Argument(help="An agent run folder.")],
+    episodes: Annotated[
+        int | None, typer.Option(help="Greedy test episodes (default 1000).")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the test episodes.")] = 1_000_000,
+) -> None:
+    """Run greedy test episodes (batched) and print the success rate with its 95% interval, and
+    M's accuracy over all 192 x 6 true transitions."""
+    from imagine.agent import load_agent
+    from imagine.checkpoint import write_json
+    from imagine.evaluate import greedy_success, model_accuracy
+
+    agent = load_agent(run)
+    n = episodes or agent.config.eval_episodes
+    result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
+    accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
+    write_json(run / "evaluation.json", {"after_episodes": agent.episode, **result,
+                                          "model_accuracy": accuracy})  # fmt: skip
+    print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
+    low, high = 100 * result["ci_low"], 100 * result["ci_high"]
+    print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
+    print("M accuracy: transition {transition:.1%}, reward {reward:.1%}, terminal {terminal:.1%}"
+          .format(**accuracy))  # fmt: skip
+
+
 def main() -> None:
     """Entry point of the `imagine` command."""
     try:

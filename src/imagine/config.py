@@ -172,3 +172,144 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(document, dict):
         raise ConfigError(f"config file {path} must hold a mapping, got {type(document).__name__}")
     return document
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Algorithm 1: C, M and the memories (paper section V-B; DESIGN.md section 2).
+
+    Where the paper is silent the DESIGN.md choice is the default and a field."""
+
+    task: str = "original"
+    """GesturePuzzle task: original or hard."""
+    method: str = "augmented"
+    """baseline (real transitions only) or augmented (plus imaginary ones from episode I_start)."""
+    episodes: int = 2000
+    """Training episodes (the paper's budgets are 2000..6000)."""
+    seed: int = 0
+    """Seed of the networks, the environment and every random draw."""
+    encoder: str = "vae"
+    """vae: V's latent; oracle: a fixed random embedding of the true macrostate (studies M and C
+    apart from vision)."""
+    vae_run: str | None = None
+    """V run folder (from `imagine vae train`) for encoder=vae."""
+    oracle_sigma: float = 0.05
+    """The sigma the oracle encoder reports, so latents can still be re-sampled."""
+    gamma: float = 0.99
+    """Discount (the paper does not say; DESIGN.md: 0.99)."""
+    eps_min: float = 0.001
+    """epsilon_min of the exploration schedule."""
+    eps_max: float = 0.8
+    """epsilon_max of the exploration schedule."""
+    eps_decay: float = 0.03
+    """lambda of the exploration schedule."""
+    eps_time: str = "step"
+    """What t counts in epsilon(t): step (global time step, as written) or episode."""
+    controller_lr: float = 1e-3
+    """C's Adam learning rate."""
+    target_update_period: int = 0
+    """Updates between target-network copies; 0: no target network (the paper)."""
+    double_dqn: bool = False
+    """Double DQN targets (an option; the paper uses plain DQN)."""
+    real_batch: int = 64
+    """Real transitions per C update."""
+    imaginary_batch: int = 64
+    """Imaginary transitions per C update."""
+    n_real_updates: int = 1
+    """N_R: C updates on real batches per time step."""
+    n_imaginary_updates: int = 1
+    """N_I: C updates on imaginary batches per time step."""
+    real_memory: int = 50_000
+    """Capacity of the real memory M_R."""
+    imaginary_memory: int = 3_000
+    """Capacity of the imaginary memory M_I (first in, first out)."""
+    model_updates: int = 16
+    """N_E: updates of each of M's networks per time step."""
+    model_batch: int = 512
+    """Real transitions per M update."""
+    model_lr: float = 1e-3
+    """Adam learning rate of M's networks."""
+    n_components: int = 5
+    """Gaussians in the MDN."""
+    dropout: float = 0.5
+    """Dropout in M's networks."""
+    imagination_start: int = 1000
+    """I_start: first episode with imagined rollouts."""
+    imagination_breadth: int = 3
+    """I_B: imagined rollouts per time step."""
+    imagination_depth: int = 10
+    """I_D: steps per imagined rollout at most."""
+    log_every: int = 50
+    """Episodes per metrics row."""
+    accuracy_every: int = 250
+    """Episodes between measurements of M's accuracy over all 192 x 6 transitions."""
+    checkpoint_every: int = 250
+    """Episodes between checkpoints (and at the end, and on SIGINT/SIGTERM)."""
+    eval_episodes: int = 1000
+    """Greedy test episodes of `imagine evaluate`."""
+
+    def __post_init__(self) -> None:
+        from imagine.env.rules import TASKS
+
+        choices = {"task": TASKS, "method": ("baseline", "augmented"),
+                   "encoder": ("vae", "oracle"), "eps_time": ("step", "episode")}  # fmt: skip
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ConfigError(
+                    f"agent.{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}"
+                )
+        positive = ("episodes", "real_batch", "imaginary_batch", "real_memory",
+                    "imaginary_memory", "model_batch", "imagination_breadth",
+                    "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
+                    "eval_episodes", "n_components", "controller_lr", "model_lr")  # fmt: skip
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
+        for name in ("model_updates", "n_real_updates", "n_imaginary_updates",
+                     "target_update_period", "imagination_start", "seed"):  # fmt: skip
+            if getattr(self, name) < 0:
+                raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ConfigError(f"agent.gamma must be in [0, 1], got {self.gamma}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ConfigError(f"agent.dropout must be in [0, 1), got {self.dropout}")
+        if not 0.0 <= self.eps_min <= self.eps_max <= 1.0:
+            raise ConfigError("agent epsilons must satisfy 0 <= eps_min <= eps_max <= 1")
+        if self.model_batch > self.real_memory or self.real_batch > self.real_memory:
+            raise ConfigError(
+                "agent.model_batch and agent.real_batch must fit in agent.real_memory"
+            )
+        if self.imaginary_batch > self.imaginary_memory:
+            raise ConfigError("agent.imaginary_batch must fit in agent.imaginary_memory")
+        if self.method == "augmented" and self.imagination_start >= self.episodes:
+            raise ConfigError(
+                f"agent.imagination_start ({self.imagination_start}) is beyond the episode "
+                f"budget ({self.episodes}): the augmented agent would never imagine"
+            )
+        if self.oracle_sigma <= 0:
+            raise ConfigError("agent.oracle_sigma must be positive")
+
+
+AGENT_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    # fast: M gets 2 updates of 128 per time step instead of 16 of 512 (the paper's M costs
+    # ~37 GFLOP per real step); everything else is the paper's.
+    "fast": {"model_updates": 2, "model_batch": 128},
+    "smoke": {
+        "episodes": 300,
+        "model_updates": 1,
+        "model_batch": 64,
+        "imagination_start": 100,
+        "log_every": 25,
+        "accuracy_every": 100,
+        "checkpoint_every": 100,
+        "eval_episodes": 200,
+        "real_memory": 5000,
+    },
+}
+
+
+def agent_preset(preset: str = "fast", **overrides: Any) -> AgentConfig:
+    """The Algorithm 1 config of a preset, with ``overrides`` applied (validated)."""
+    values = {**AGENT_PRESETS[check_preset(preset)], **overrides}
+    return from_dict(AgentConfig, values, "agent")

@@ -1,0 +1,65 @@
+"""What C and M see: V's latent, or an oracle embedding of the true macrostate.
+
+Both encoders give ``(mu, sigma)`` for a batch of observations, read a macrostate back from a
+latent (for M's accuracy), and give one reference latent per macrostate (the 192 states M's
+accuracy is measured from). The oracle feeds C and M a fixed random embedding of the true
+macrostate, so the learning of M and C can be tested and studied apart from vision.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from imagine.env.rules import all_macrostates, macrostate_index
+from imagine.env.scene import SceneComposer
+from imagine.vision import encode_images
+
+
+class OracleEncoder:
+    """A fixed N(0, I) embedding per macrostate; sigma is a small constant."""
+
+    def __init__(self, latent_dim: int = 8, sigma: float = 0.05, seed: int = 12345) -> None:
+        self.latent_dim = latent_dim
+        self.sigma = sigma
+        self.table = torch.randn(192, latent_dim, generator=torch.Generator().manual_seed(seed))
+
+    def encode(self, images: np.ndarray, states: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        mu = self.table[torch.as_tensor(macrostate_index(states))]
+        return mu, torch.full_like(mu, self.sigma)
+
+    def classify(self, z: torch.Tensor) -> torch.Tensor:
+        """The macrostate of the nearest embedding, int64 (N, 4)."""
+        nearest = torch.cdist(z, self.table).argmin(-1)
+        return torch.from_numpy(all_macrostates().copy())[nearest]
+
+    def state_latents(self) -> torch.Tensor:
+        return self.table.clone()
+
+
+class VaeEncoder:
+    """V's posterior; macrostates are read back with the run's latent classifier."""
+
+    def __init__(self, run: str | Path, composer: SceneComposer, images_per_state: int = 8):
+        from imagine.vision_training import load_classifier, load_vae
+
+        self.vae, config, _ = load_vae(run)
+        self.vae.eval()
+        self.latent_dim = config.latent_dim
+        self.classifier = load_classifier(run, config.latent_dim)
+        rng = np.random.default_rng(0)
+        states = np.repeat(all_macrostates(), images_per_state, axis=0)
+        mu, _ = encode_images(self.vae, composer.sample(rng, states))
+        self._state_latents = mu.view(192, images_per_state, -1).mean(1)
+
+    @torch.no_grad()
+    def encode(self, images: np.ndarray, states: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        return encode_images(self.vae, images)
+
+    def classify(self, z: torch.Tensor) -> torch.Tensor:
+        return self.classifier.predict(z)
+
+    def state_latents(self) -> torch.Tensor:
+        return self._state_latents.clone()

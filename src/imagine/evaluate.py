@@ -1,0 +1,88 @@
+"""Judging an agent: greedy test episodes in the vectorized environment, and M's accuracy over
+all 192 x 6 true transitions (DESIGN.md section 3)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+
+from imagine.controller import Controller
+from imagine.env.rules import (
+    N_ACTIONS,
+    REWARD_GOAL,
+    REWARD_ILLEGAL,
+    REWARD_STEP,
+    all_macrostates,
+    apply_actions,
+    is_terminal,
+    rewards,
+)
+from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.world_model import WorldModel
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (centre - half, centre + half)
+
+
+@torch.no_grad()
+def greedy_success(
+    controller: Controller, encoder, task: str, episodes: int, seed: int, composer=None
+) -> dict[str, float]:
+    """Run ``episodes`` greedy test episodes at once; success = the episode reached a goal."""
+    envs = GesturePuzzleVectorEnv(
+        episodes, task=task, fragments=None if composer is None else composer.pool,
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )  # fmt: skip
+    obs, info = envs.reset(seed=seed)
+    states = info["macrostate"]
+    running = np.ones(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    returns = np.zeros(episodes)
+    controller.eval()
+    while running.any():
+        mu, _ = encoder.encode(obs, states)
+        actions = controller(mu).argmax(-1).numpy()
+        obs, reward, terminated, truncated, info = envs.step(actions)
+        returns += np.where(running, reward, 0.0)
+        success |= running & (reward == REWARD_GOAL)
+        running &= ~(terminated | truncated)
+        states = info["macrostate"]
+    controller.train()
+    n = int(success.sum())
+    low, high = wilson_interval(n, episodes)
+    return {"success": n / episodes, "ci_low": low, "ci_high": high,
+            "mean_return": float(returns.mean()), "episodes": episodes}  # fmt: skip
+
+
+@torch.no_grad()
+def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
+    """Over all 192 x 6 true transitions, from each macrostate's reference latent: how often
+    M's most likely next state shows the right macrostate (read by the encoder's classifier),
+    and how often r (rounded to the nearest of +50, -5, -1) and d are right at that state."""
+    states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
+    actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
+    truth = apply_actions(states, actions)
+    z = encoder.state_latents().repeat_interleave(N_ACTIONS, dim=0)
+    was_training = model.training
+    model.eval()
+    next_z = model.mdn.most_likely(z, torch.as_tensor(actions))
+    right_state = (encoder.classify(next_z).numpy() == truth).all(-1)
+    levels = torch.tensor([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
+    reward = levels[(model.reward(next_z)[:, None] - levels).abs().argmin(-1)].numpy()
+    terminal = model.terminal.is_terminal(next_z).numpy()
+    model.train(was_training)
+    return {
+        "transition": float(right_state.mean()),
+        "reward": float((reward == rewards(truth, task)).mean()),
+        "terminal": float((terminal == is_terminal(truth, task)).mean()),
+    }

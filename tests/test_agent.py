@@ -1,0 +1,111 @@
+"""Algorithm 1 end to end (oracle encoder): it learns, it resumes, it rejects bad settings."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from imagine.agent import load_agent, train
+from imagine.config import agent_preset
+from imagine.env.rules import REWARD_GOAL
+from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.errors import CheckpointError, ConfigError
+from imagine.evaluate import greedy_success, wilson_interval
+from imagine.metrics import read_metrics
+
+IMAGINE = str(Path(sys.executable).parent / "imagine")
+
+
+def random_agent_success(task: str, episodes: int = 2000) -> float:
+    envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode="SameStep")
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    running = np.ones(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    while running.any():
+        _, reward, terminated, truncated, _ = envs.step(rng.integers(0, 6, episodes))
+        success |= running & (reward == REWARD_GOAL)
+        running &= ~(terminated | truncated)
+    return float(success.mean())
+
+
+def test_smoke_agent_with_the_oracle_learns_well_above_random(tmp_path):
+    torch.manual_seed(0)
+    config = agent_preset("smoke", encoder="oracle", method="augmented")
+    agent = train(config, tmp_path, threads=1)
+    result = greedy_success(agent.controller, agent.encoder, "original", 1000, seed=123)
+    random = random_agent_success("original")
+    assert 0.02 < random < 0.06  # the paper's random agent: 3.72%
+    assert result["success"] > 2.5 * random, (result, random)
+    rows = read_metrics(tmp_path / "metrics.csv")
+    assert rows[-1]["step"] == 300 and "model/transition_accuracy" in rows[-1]
+    assert rows[-1]["charts/imagined_transitions"] > 0  # imagination from I_start on
+    assert "charts/imagined_transitions" in rows[0] and rows[0]["charts/imagined_transitions"] == 0
+
+
+def test_stopped_and_resumed_continues_where_it_was(tmp_path):
+    settings = {"encoder": "oracle", "method": "augmented", "imagination_start": 40,
+                "checkpoint_every": 50, "log_every": 25, "accuracy_every": 50}  # fmt: skip
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    train(agent_preset("smoke", episodes=120, **settings), straight, threads=1)
+    train(agent_preset("smoke", episodes=50, **settings), resumed, threads=1)
+    train(agent_preset("smoke", episodes=120, **settings), resumed, threads=1)
+    a, b = load_agent(straight), load_agent(resumed)
+    assert a.episode == b.episode == 120 and a.t == b.t
+    for (name, p), q in zip(a.controller.state_dict().items(), b.controller.state_dict().values(),
+                            strict=True):  # fmt: skip
+        assert torch.equal(p, q), name
+    for (name, p), q in zip(
+        a.model.state_dict().items(), b.model.state_dict().values(), strict=True
+    ):
+        assert torch.equal(p, q), name
+
+    def numbers(folder):
+        return [{k: v for k, v in row.items() if not k.startswith("time")}
+                for row in read_metrics(folder / "metrics.csv")]  # fmt: skip
+
+    assert numbers(straight) == numbers(resumed)
+
+
+def test_bad_agent_configs():
+    with pytest.raises(ConfigError, match="beyond the episode budget"):
+        agent_preset("fast", episodes=500, imagination_start=1000)
+    with pytest.raises(ConfigError, match=r"agent\.method must be one of"):
+        agent_preset("fast", method="dyna")
+    with pytest.raises(ConfigError, match="did you mean 'imagination_depth'"):
+        agent_preset("fast", imagination_dept=5)
+    with pytest.raises(ConfigError, match=r"must fit in agent\.real_memory"):
+        agent_preset("fast", real_memory=100)
+
+
+def test_a_folder_with_another_run_is_not_overwritten(tmp_path):
+    train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline"), tmp_path,
+          threads=1)  # fmt: skip
+    with pytest.raises(CheckpointError, match="another config"):
+        train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline", seed=1),
+              tmp_path, threads=1)  # fmt: skip
+
+
+def test_wilson_interval():
+    low, high = wilson_interval(500, 1000)
+    assert low == pytest.approx(0.469, abs=1e-3) and high == pytest.approx(0.531, abs=1e-3)
+    assert wilson_interval(0, 1000)[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_train_and_evaluate_commands(tmp_path):
+    run = tmp_path / "run"
+    done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
+                           "--method", "baseline", "--episodes", "40"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    done = subprocess.run([IMAGINE, "evaluate", str(run), "--episodes", "100"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "success" in done.stdout and "M accuracy: transition" in done.stdout
+    assert (run / "evaluation.json").is_file()
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--preset", "smoke"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 2 and "no V run was given" in done.stderr
