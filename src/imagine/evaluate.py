@@ -77,12 +77,15 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     model.eval()
     next_z = model.mdn.most_likely(z, torch.as_tensor(actions))
     right_state = (encoder.classify(next_z).numpy() == truth).all(-1)
+    # Terminal states never start a real transition, so M sees only moves from the others.
+    seen = ~is_terminal(states, task)
     levels = torch.tensor([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
     reward = levels[(model.reward(next_z)[:, None] - levels).abs().argmin(-1)].numpy()
     terminal = model.terminal.is_terminal(next_z).numpy()
     model.train(was_training)
     return {
         "transition": float(right_state.mean()),
+        "transition_nonterminal": float(right_state[seen].mean()),
         "reward": float((reward == rewards(truth, task)).mean()),
         "terminal": float((terminal == is_terminal(truth, task)).mean()),
     }
