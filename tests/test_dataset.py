@@ -94,3 +94,24 @@ def test_dataset_command(tmp_path):
     assert "images/s" in done.stderr
     arrays, config = load_dataset(out)
     assert len(arrays["train_images"]) == 300 and config.n_test == 100
+
+
+def test_metadata_that_does_not_match_the_arrays(tmp_path):
+    import json
+
+    from safetensors.numpy import save_file
+
+    config = DatasetConfig(n_train=10, n_test=2)
+    arrays = synthesize(config)
+    meta = {"imagine_dataset": json.dumps({"n_train": 100, "n_test": 2})}
+    save_file(arrays, str(tmp_path / "a.safetensors"), metadata=meta)
+    with pytest.raises(DatasetFileError, match="metadata says 100"):
+        load_dataset(tmp_path / "a.safetensors")
+    arrays["test_macrostates"][0, 0] = 9
+    save_file(arrays, str(tmp_path / "b.safetensors"),
+              metadata={"imagine_dataset": json.dumps({"n_train": 10, "n_test": 2})})  # fmt: skip
+    with pytest.raises(DatasetFileError, match="not valid"):
+        load_dataset(tmp_path / "b.safetensors")
+    save_file(arrays, str(tmp_path / "c.safetensors"), metadata={"imagine_dataset": "{oops"})
+    with pytest.raises(DatasetFileError, match="unreadable dataset metadata"):
+        load_dataset(tmp_path / "c.safetensors")

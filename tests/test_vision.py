@@ -173,3 +173,38 @@ def test_vae_commands(tmp_path):
     done = subprocess.run([IMAGINE, "vae", "report", str(tmp_path / "none")], capture_output=True,
                           text=True, check=False)  # fmt: skip
     assert done.returncode == 2 and done.stderr.startswith("error:")
+
+
+def test_finished_results_are_never_cut_back(tmp_path):
+    smoke(tmp_path, epochs=2)
+    with pytest.raises(CheckpointError, match="holds 2 finished epochs"):
+        smoke(tmp_path, epochs=1)
+    assert len((tmp_path / "metrics.csv").read_text().splitlines()) == 3
+
+
+@pytest.mark.parametrize(
+    "document, message",
+    [
+        ('{"format": "imagine-vae-1"}', "lacks a config mapping"),
+        ("[]", "not a V checkpoint"),
+        ('{"format": "other", "epoch": 1, "config": {}}', "not a V checkpoint"),
+    ],
+)
+def test_malformed_metadata_is_reported(tmp_path, document, message):
+    smoke(tmp_path, epochs=1)
+    (tmp_path / "vae.json").write_text(document)
+    with pytest.raises(CheckpointError, match=message):
+        load_vae(tmp_path)
+    with pytest.raises(CheckpointError, match=message):
+        smoke(tmp_path, epochs=1)
+
+
+def test_report_scores_fresh_images_from_the_training_pool(tmp_path):
+    from imagine.dataset import save_dataset
+    from imagine.vision_training import fresh_images_config, with_dataset
+
+    made = DatasetConfig(n_train=100, n_test=3, seed=4, fragment_seed=5, n_cube_fragments=3)
+    path = save_dataset(tmp_path / "d.safetensors", synthesize(made), made)
+    config = with_dataset(vision_preset("smoke", batch_size=32), path)
+    fresh = fresh_images_config(config)
+    assert (fresh.fragment_seed, fresh.n_cube_fragments, fresh.seed) == (5, 3, 5)

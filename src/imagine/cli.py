@@ -41,7 +41,7 @@ FragmentsOption = Annotated[
     Path | None,
     typer.Option(help="Folder of fragment photographs (see README); default: procedural renderer."),
 ]
-FragmentSeedOption = Annotated[int, typer.Option(help="Seed of the procedural renderer.")]
+FragmentSeedOption = Annotated[int, typer.Option(min=0, help="Seed of the procedural renderer.")]
 CubeFragmentsOption = Annotated[
     int, typer.Option(help="Procedural fragments per (cube, direction) microstate.")
 ]
@@ -53,7 +53,7 @@ def env_show(
     task: Annotated[
         TaskName, typer.Option(help="Which goal: original or hard.")
     ] = TaskName.original,
-    seed: Annotated[int, typer.Option(help="Seed of the examples drawn.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the examples drawn.")] = 0,
     out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("results/contact_sheet.png"),
     fragments: FragmentsOption = None,
     fragment_seed: FragmentSeedOption = 0,
@@ -90,7 +90,7 @@ def dataset(
     out: Annotated[Path, typer.Argument(help="safetensors file to write.")],
     n_train: Annotated[int, typer.Option(help="Training images.")] = 100_000,
     n_test: Annotated[int, typer.Option(help="Test images.")] = 10_000,
-    seed: Annotated[int, typer.Option(help="Seed of the states and fragments drawn.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the states and fragments drawn.")] = 0,
     fragments: FragmentsOption = None,
     fragment_seed: FragmentSeedOption = 0,
     n_cube_fragments: CubeFragmentsOption = 16,
@@ -98,7 +98,9 @@ def dataset(
 ) -> None:
     """Synthesize the images V trains on (the paper's 100,000 training and 10,000 test)."""
     from imagine.dataset import DatasetConfig, save_dataset, synthesize
+    from imagine.env import make_composer
 
+    make_composer(fragments, fragment_seed, n_cube_fragments, n_hand_fragments)  # check first
     config = DatasetConfig(
         n_train,
         n_test,
@@ -145,12 +147,14 @@ def vae_train(
     """Train V on synthesized images (or a dataset file), then fit the latent classifier.
     Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume."""
     from imagine.config import vision_preset
-    from imagine.vision_training import train_vae, with_dataset
+    from imagine.vision_training import resolve_device, resume_point, train_vae, with_dataset
 
     overrides = {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
     config = vision_preset(preset, **overrides)
     if dataset is not None:
         config = with_dataset(config, dataset)
+    resolve_device(device)  # errors before any progress bar is drawn
+    resume_point(out, config)
     start = time.perf_counter()
     columns = (TextColumn("training V"), BarColumn(), MofNCompleteColumn())
     with Progress(
@@ -176,8 +180,8 @@ def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> 
 
     from imagine.vision_report import vision_report
     from imagine.vision_training import (
-        dataset_fragments,
         evaluate_vae,
+        fresh_images_config,
         load_classifier,
         load_vae,
         make_data,
@@ -188,7 +192,7 @@ def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> 
     data = make_data(config)
     test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
     report = vision_report(
-        vae, classifier, config, data.test_images, test_loss, run, dataset_fragments(config)
+        vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config)
     )
     table = Table(title=f"V after {epoch} epochs ({run})")
     table.add_column("measure")
@@ -281,6 +285,6 @@ def main() -> None:
     """Entry point of the `imagine` command."""
     try:
         app()
-    except ImagineError as exc:
+    except (ImagineError, OSError) as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(2)

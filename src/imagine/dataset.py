@@ -23,7 +23,7 @@ from safetensors.numpy import load_file, save_file
 from imagine.env.gesture_puzzle import FragmentSource, make_composer
 from imagine.env.rules import N_MACROSTATES, all_macrostates
 from imagine.env.scene import OBS_SIZE
-from imagine.errors import ConfigError, DatasetFileError
+from imagine.errors import ConfigError, DatasetFileError, ImagineError
 
 SPLITS = ("train", "test")
 
@@ -116,4 +116,19 @@ def load_dataset(path: str | Path) -> tuple[dict[str, np.ndarray], DatasetConfig
             raise DatasetFileError(f"{path}: {split}_images must be uint8 (N, 64, 64, 3)")
         if states.shape != (len(images), 4):
             raise DatasetFileError(f"{path}: {split}_macrostates must be (N, 4), one per image")
-    return arrays, DatasetConfig(**json.loads(meta["imagine_dataset"]))
+    try:
+        config = DatasetConfig(**json.loads(meta["imagine_dataset"]))
+    except (json.JSONDecodeError, TypeError, ImagineError) as exc:
+        raise DatasetFileError(f"{path} has unreadable dataset metadata ({exc})") from None
+    for split, n in zip(SPLITS, (config.n_train, config.n_test), strict=True):
+        states = arrays[f"{split}_macrostates"]
+        if len(states) != n:
+            raise DatasetFileError(f"{path}: {split} holds {len(states)} images, metadata says {n}")
+        if (
+            states.dtype.kind not in "iu"
+            or (states < 0).any()
+            or (states[:, :3] > 3).any()
+            or (states[:, 3] > 2).any()
+        ):
+            raise DatasetFileError(f"{path}: {split}_macrostates are not valid (d0, d1, d2, h)")
+    return arrays, config

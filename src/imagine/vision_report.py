@@ -23,6 +23,13 @@ from imagine.latent_classifier import LatentClassifier
 from imagine.vision import ConvVAE, encode_images, to_input
 
 
+def _save(fig: Figure, out: Path) -> None:
+    """PNG written atomically: a temporary file, then a rename."""
+    tmp = out.with_name(f".{out.name}.tmp")
+    fig.savefig(tmp, dpi=80, format="png")
+    tmp.replace(out)
+
+
 def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
     """An observation, (3, 64, 64) in [0, 1] or uint8 (64, 64, 3), as its strips side by side."""
     if isinstance(x, torch.Tensor):
@@ -34,6 +41,7 @@ def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
 
 
 def reconstructions_png(vae: ConvVAE, images: np.ndarray, out: Path, n: int = 8) -> Path:
+    n = min(n, len(images))
     with torch.no_grad():
         vae.eval()
         mu, _ = vae.encode(to_input(images[:n]))
@@ -46,7 +54,7 @@ def reconstructions_png(vae: ConvVAE, images: np.ndarray, out: Path, n: int = 8)
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title)
-    fig.savefig(out, dpi=80)
+    _save(fig, out)
     return out
 
 
@@ -72,18 +80,13 @@ def traversals_png(vae: ConvVAE, image: np.ndarray, out: Path, steps: int = 7) -
             if dim == 0:
                 axes[dim, k].set_title(f"{float(values[k]):+.1f}")
     fig.suptitle("latent traversals: each row sweeps one dimension of z around a test image")
-    fig.savefig(out, dpi=80)
+    _save(fig, out)
     return out
 
 
-def fresh_test_set(config: VisionConfig, fragments: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """Images V never saw: the same fragments, another seed."""
-    arrays = synthesize(
-        DatasetConfig(
-            n_train=config.n_classifier_test, n_test=1, seed=config.data_seed + 1,
-            fragments=fragments,
-        )
-    )  # fmt: skip
+def fresh_test_set(made: DatasetConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Images V never saw (see :func:`~imagine.vision_training.fresh_images_config`)."""
+    arrays = synthesize(made)
     return arrays["train_images"], arrays["train_macrostates"]
 
 
@@ -94,10 +97,10 @@ def vision_report(
     test_images: np.ndarray,
     test_loss: dict[str, float],
     folder: Path,
-    fragments: str | None = None,
+    fresh: DatasetConfig,
 ) -> dict[str, Any]:
     """Write the PNGs and report.json into ``folder``; return the numbers."""
-    images, states = fresh_test_set(config, fragments)
+    images, states = fresh_test_set(fresh)
     mu, _ = encode_images(vae, images)
     accuracy = classifier.accuracy(mu, torch.as_tensor(states))
     report = {

@@ -87,9 +87,14 @@ def with_dataset(config: VisionConfig, path: str | Path) -> VisionConfig:
     )  # fmt: skip
 
 
-def dataset_fragments(config: VisionConfig) -> str | None:
-    """The fragment folder the images of ``config`` came from (None: procedural)."""
-    return None if config.dataset is None else load_dataset(config.dataset)[1].fragments
+def fresh_images_config(config: VisionConfig) -> DatasetConfig:
+    """Images V never saw, from the same fragments as its training images, another seed."""
+    made = (
+        DatasetConfig(config.n_train, config.n_test, config.data_seed)
+        if config.dataset is None
+        else load_dataset(config.dataset)[1]
+    )
+    return dataclasses.replace(made, n_train=config.n_classifier_test, n_test=1, seed=made.seed + 1)
 
 
 def evaluate_vae(vae: ConvVAE, images: np.ndarray, beta: float, seed: int) -> dict[str, float]:
@@ -123,15 +128,12 @@ def save_vae(folder: Path, vae: ConvVAE, config: VisionConfig, epoch: int, extra
 def load_vae(folder: str | Path) -> tuple[ConvVAE, VisionConfig, int]:
     """The trained V of a run folder, its config and the epochs it has finished."""
     folder = Path(folder)
-    meta = read_json(folder / "vae.json", "V checkpoint metadata")
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise CheckpointError(f"{folder / 'vae.json'} is not a V checkpoint of this version")
-    config = from_dict(VisionConfig, meta["config"], "vision")
+    config, epoch = _read_meta(folder)
     vae = ConvVAE(config.latent_dim)
     tensors = load_tensors(folder / "vae.safetensors", "V checkpoint")
     model = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
     load_state_dict_strict(vae, model, f"V checkpoint {folder / 'vae.safetensors'}")
-    return vae, config, int(meta["epoch"])
+    return vae, config, epoch
 
 
 def load_classifier(folder: str | Path, latent_dim: int) -> LatentClassifier:
@@ -141,17 +143,31 @@ def load_classifier(folder: str | Path, latent_dim: int) -> LatentClassifier:
     return classifier
 
 
-def _resume_point(folder: Path, config: VisionConfig) -> int:
+def _read_meta(folder: Path) -> tuple[VisionConfig, int]:
+    """Config and finished epochs from ``vae.json``, each malformation a CheckpointError."""
+    path = folder / "vae.json"
+    meta = read_json(path, "V checkpoint metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a V checkpoint of this version")
+    if not isinstance(meta.get("config"), dict) or not isinstance(meta.get("epoch"), int):
+        raise CheckpointError(f"{path} lacks a config mapping or an integer epoch")
+    return from_dict(VisionConfig, meta["config"], "vision"), meta["epoch"]
+
+
+def resume_point(folder: Path, config: VisionConfig) -> int:
     """Epochs already finished by a compatible run in ``folder`` (0 for a new run)."""
     if not (folder / "vae.json").is_file():
         return 0
-    meta = read_json(folder / "vae.json", "V checkpoint metadata")
-    saved = from_dict(VisionConfig, meta.get("config", {}), "vision")
+    saved, epoch = _read_meta(folder)
     if dataclasses.replace(saved, epochs=config.epochs) != config:
         raise CheckpointError(
             f"{folder} holds a V run with another config; use a new folder or the same settings"
         )
-    return min(int(meta["epoch"]), config.epochs)
+    if epoch > config.epochs:
+        raise CheckpointError(
+            f"{folder} holds {epoch} finished epochs, more than the {config.epochs} asked for"
+        )
+    return epoch
 
 
 def train_vae(
@@ -169,7 +185,7 @@ def train_vae(
     dev = resolve_device(device)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    done = _resume_point(folder, config)
+    done = resume_point(folder, config)
     atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
     data = data if data is not None else make_data(config)
 
@@ -183,12 +199,26 @@ def train_vae(
         load_state_dict_strict(
             vae, {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}, "V checkpoint"
         )
+        needed = ("rng.shuffle", "rng.noise")
+        if any(k not in tensors for k in needed) or not any(
+            k.startswith("optim.") for k in tensors
+        ):
+            raise CheckpointError(f"{folder / 'vae.safetensors'} lacks the optimizer or RNG state")
         optimizer_from_tensors(optimizer, tensors, "optim")
-        shuffle.set_state(tensors["rng.shuffle"])
-        noise.set_state(tensors["rng.noise"])
+        try:
+            shuffle.set_state(tensors["rng.shuffle"])
+            noise.set_state(tensors["rng.noise"])
+        except RuntimeError:
+            raise CheckpointError(
+                f"{folder} was trained on another device than {dev.type}; resume it there"
+            ) from None
     logger = MetricsLogger(folder, resume_step=done)
     row: dict[str, float] = {}
     n = len(data.train_images)
+    if n < config.batch_size:
+        raise ConfigError(
+            f"{n} training images are fewer than vision.batch_size ({config.batch_size})"
+        )
     for epoch in range(done + 1, config.epochs + 1):
         start = time.perf_counter()
         sums, count = np.zeros(3), 0
@@ -196,7 +226,8 @@ def train_vae(
         batches = n // config.batch_size
         for b in range(batches):
             step = (epoch - 1) * batches + b  # updates before this one, over the whole run
-            beta = config.beta * min(1.0, step / max(config.beta_warmup_steps, 1))
+            warmup = config.beta_warmup_steps
+            beta = config.beta if warmup == 0 else config.beta * min(1.0, step / warmup)
             first = b * config.batch_size
             index = order[first : first + config.batch_size].numpy()
             x = to_input(data.train_images[np.sort(index)])
@@ -220,8 +251,8 @@ def train_vae(
             "rng.shuffle": shuffle.get_state(),
             "rng.noise": noise.get_state(),
         }
+        row = logger.dump(epoch)  # the row first: a resume trims rows past the checkpoint
         save_vae(folder, vae, config, epoch, extra)
-        row = logger.dump(epoch)
         if on_epoch is not None:
             on_epoch(epoch, row)
     logger.close()

@@ -86,8 +86,8 @@ def contact_sheet(
     )
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
-    fig.savefig(tmp, dpi=80)
+    tmp = out.with_name(f".{out.name}.tmp")
+    fig.savefig(tmp, dpi=80, format="png")
     tmp.replace(out)
     return out
 
