@@ -1,7 +1,7 @@
 """Milliseconds per real time step of Algorithm 1, on one core.
 
 For baseline and augmented under `fast` and `paper` (oracle encoder, so vision does not count;
-V adds about 0.7 ms per step, see vae_speed.py), after the memories hold enough transitions:
+V adds about 0.7 ms per step, see vae_speed.py), once M_R holds a batch of (random) transitions:
 each agent runs with imagination on from the first episode, and the time of ``--steps`` steps is
 divided by their number. The reference measured in the same run is a float32 matrix product.
 
@@ -24,8 +24,12 @@ def ms_per_step(preset: str, method: str, steps: int) -> float:
     config = agent_preset(preset, encoder="oracle", method=method, imagination_start=0,
                           episodes=10**6)  # fmt: skip
     agent = Agent(config, OracleEncoder())
-    while agent.t < config.model_batch:  # fill M_R enough for M's batches
-        agent.run_episode()
+    n, d = config.model_batch, agent.encoder.latent_dim
+    agent.real.add(  # M_R needs a batch's worth before the first update; the cost is the same
+        mu=torch.randn(n, d), sigma=torch.full((n, d), 0.05), action=torch.randint(6, (n,)),
+        next_mu=torch.randn(n, d), next_sigma=torch.full((n, d), 0.05),
+        reward=torch.full((n,), -1.0), done=torch.zeros(n),
+    )  # fmt: skip
     start_t, start = agent.t, time.perf_counter()
     while agent.t - start_t < steps:
         agent.run_episode()
