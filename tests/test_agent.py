@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from imagine.agent import load_agent, train
 from imagine.config import agent_preset
@@ -97,8 +98,11 @@ def test_wilson_interval():
 
 def test_train_and_evaluate_commands(tmp_path):
     run = tmp_path / "run"
+    (tmp_path / "c.yaml").write_text("gamma: 0.9\n")
     done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
-                           "--method", "baseline", "--episodes", "40"],
+                           "--method", "augmented", "--episodes", "40",
+                           "--config", str(tmp_path / "c.yaml"), "--set", "dropout=0.25",
+                           "--set", "imagination_start=20"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
     done = subprocess.run([IMAGINE, "evaluate", str(run), "--episodes", "100"],
@@ -106,6 +110,8 @@ def test_train_and_evaluate_commands(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "success" in done.stdout and "M accuracy: transition" in done.stdout
     assert (run / "evaluation.json").is_file()
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["gamma"] == 0.9 and saved["dropout"] == 0.25
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--preset", "smoke"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 2 and "no V run was given" in done.stderr

@@ -58,6 +58,9 @@ def test_export_fragments_round_trips(tmp_path):
     [
         (["env", "show", "--fragments", "/no/such/folder"], "does not exist"),
         (["dataset", "x.safetensors", "--n-train", "0"], "must be positive"),
+        (["train", "r", "--oracle", "--set", "dropout"], "KEY=VALUE"),
+        (["train", "r", "--oracle", "--set", "dropuot=0.1"], "did you mean 'dropout'"),
+        (["train", "r", "--oracle", "--config", "missing.yaml"], "does not exist"),
     ],
 )
 def test_user_errors_are_one_line_and_exit_2(tmp_path, args, message):

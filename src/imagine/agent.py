@@ -48,7 +48,7 @@ from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.metrics import MetricsLogger
 from imagine.world_model import WorldModel
 
-FORMAT = "imagine-agent-1"
+FORMAT = "imagine-agent-2"
 
 
 def make_encoder(config: AgentConfig):
@@ -88,6 +88,19 @@ class Agent:
         t = self.t if c.eps_time == "step" else self.episode
         return epsilon(t, c.eps_min, c.eps_max, c.eps_decay)
 
+    @property
+    def trains_model(self) -> bool:
+        return self.config.method == "augmented" or self.config.baseline_trains_m
+
+    def controller_states(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+        """The states C learns from for a real batch: V's means, or draws from N(mu, sigma)."""
+        if self.config.controller_input == "mu":
+            return batch["mu"], batch["next_mu"]
+        return tuple(
+            batch[m] + batch[s] * torch.randn(batch[m].shape, generator=self.generator)
+            for m, s in (("mu", "sigma"), ("next_mu", "next_sigma"))
+        )
+
     def run_episode(self) -> dict[str, float]:
         """One episode of Algorithm 1; returns its statistics and mean losses."""
         c = self.config
@@ -108,16 +121,15 @@ class Agent:
                 mu=mu, sigma=sigma, action=action, next_mu=next_mu, next_sigma=next_sigma,
                 reward=torch.tensor([reward]), done=torch.tensor([float(terminated)]),
             )  # fmt: skip
-            for _ in range(c.model_updates):
+            for _ in range(c.model_updates if self.trains_model else 0):
                 batch = self.real.sample(c.model_batch, self.generator)
                 for name, value in self.model.update(batch, self.generator).items():
                     losses[f"losses/{name}"].append(value)
             for _ in range(c.n_real_updates):
                 b = self.real.sample(c.real_batch, self.generator)
+                z, next_z = self.controller_states(b)
                 losses["losses/controller_real"].append(
-                    self.controller.update(
-                        b["mu"], b["action"], b["reward"], b["next_mu"], b["done"]
-                    )
+                    self.controller.update(z, b["action"], b["reward"], next_z, b["done"])
                 )
             if c.method == "augmented" and self.episode >= c.imagination_start:
                 rollouts = imagine_rollouts(
@@ -152,8 +164,7 @@ class Agent:
         tensors = {f"controller.{k}": v for k, v in self.controller.state_dict().items()}
         tensors |= optimizer_to_tensors(self.controller.optimizer, "controller_optim")
         tensors |= {f"model.{k}": v for k, v in self.model.state_dict().items()}
-        for name, optimizer in self.model.optimizers.items():
-            tensors |= optimizer_to_tensors(optimizer, f"model_optim_{name}")
+        tensors |= optimizer_to_tensors(self.model.optimizer, "model_optim")
         tensors |= self.real.state_dict("real") | self.imaginary.state_dict("imaginary")
         tensors["rng.generator"] = self.generator.get_state()
         tensors["rng.global"] = torch.get_rng_state()
@@ -182,8 +193,7 @@ class Agent:
         load_state_dict_strict(self.controller, part("controller"), where)
         load_state_dict_strict(self.model, part("model"), where)
         optimizer_from_tensors(self.controller.optimizer, tensors, "controller_optim")
-        for name, optimizer in self.model.optimizers.items():
-            optimizer_from_tensors(optimizer, tensors, f"model_optim_{name}")
+        optimizer_from_tensors(self.model.optimizer, tensors, "model_optim")
         self.real.load_state_dict(tensors, "real")
         self.imaginary.load_state_dict(tensors, "imaginary")
         self.generator.set_state(tensors["rng.generator"])
@@ -227,7 +237,7 @@ def train(
         for key, value in agent.run_episode().items():
             window[key].append(value)
         e = agent.episode
-        if e % config.accuracy_every == 0:
+        if agent.trains_model and e % config.accuracy_every == 0:
             for key, value in model_accuracy(agent.model, agent.encoder, config.task).items():
                 logger.record(f"model/{key}_accuracy", value)
         if e % config.log_every == 0 or e == config.episodes:

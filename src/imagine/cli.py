@@ -231,13 +231,23 @@ def train_agent(
         bool, typer.Option(help="Feed C and M the true macrostate's embedding.")
     ] = False,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
+    config_file: Annotated[
+        Path | None,
+        typer.Option("--config", help="YAML mapping of agent config fields over the preset."),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="KEY=VALUE over the preset and --config (YAML value)."),
+    ] = None,
 ) -> None:
     """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
     TensorBoard) and checkpoints. Run it again to resume."""
     from imagine.agent import train
-    from imagine.config import agent_preset
+    from imagine.config import agent_preset, load_yaml, parse_assignments
 
-    overrides: dict = {"task": task.value, "method": method.value, "seed": seed,
+    overrides: dict = load_yaml(config_file) if config_file is not None else {}
+    overrides |= parse_assignments(set_ or [])
+    overrides |= {"task": task.value, "method": method.value, "seed": seed,
                        "encoder": "oracle" if oracle else "vae",
                        "vae_run": None if vae is None else str(vae)}  # fmt: skip
     if episodes is not None:
@@ -271,13 +281,19 @@ def evaluate_agent(
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
-    accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
+    accuracy = None
+    if agent.trains_model:
+        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
     write_json(run / "evaluation.json", {"after_episodes": agent.episode, **result,
                                           "model_accuracy": accuracy})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
-    print("M accuracy: transition {transition:.1%}, reward {reward:.1%}, terminal {terminal:.1%}"
+    if accuracy is None:
+        print("M accuracy: not measured (a baseline run does not train M)")
+        return
+    print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
+          "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
 
 

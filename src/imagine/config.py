@@ -159,6 +159,20 @@ def to_dict(config: Any) -> dict[str, Any]:
     return dataclasses.asdict(config)
 
 
+def parse_assignments(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings as a mapping, each value read as YAML (``0.5``, ``true``, ``null``)."""
+    values: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            values[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ConfigError(f"--set {key.strip()}: {text!r} is not a valid value") from None
+    return values
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML file that must hold a mapping (safe loader only)."""
     path = Path(path)
@@ -205,6 +219,11 @@ class AgentConfig:
     """lambda of the exploration schedule."""
     eps_time: str = "step"
     """What t counts in epsilon(t): step (global time step, as written) or episode."""
+    controller_input: str = "mu"
+    """What C learns from for real transitions: mu (V's mean, what C acts on) or sample (a
+    draw from N(mu, sigma), like the imagined states M produces). The paper does not say."""
+    baseline_trains_m: bool = False
+    """Train M in baseline runs too (only for its accuracy curve: C never uses it there)."""
     controller_lr: float = 1e-3
     """C's Adam learning rate."""
     target_update_period: int = 0
@@ -252,7 +271,8 @@ class AgentConfig:
         from imagine.env.rules import TASKS
 
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
-                   "encoder": ("vae", "oracle"), "eps_time": ("step", "episode")}  # fmt: skip
+                   "encoder": ("vae", "oracle"), "eps_time": ("step", "episode"),
+                   "controller_input": ("mu", "sample")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(

@@ -25,6 +25,11 @@ def epsilon(
     return eps_min + (eps_max - eps_min) * math.exp(-decay * t)
 
 
+def adam(params, lr: float) -> torch.optim.Adam:
+    """Adam with the fused kernel (one kernel for all parameters; same update rule)."""
+    return torch.optim.Adam(params, lr=lr, fused=True)
+
+
 def mlp(sizes: list[int], dropout: float = 0.0) -> nn.Sequential:
     """Linear layers with ReLU (and dropout) between them, none after the last."""
     layers: list[nn.Module] = []
@@ -54,7 +59,7 @@ class Controller(nn.Module):
         self.n_actions = n_actions
         self.gamma = gamma
         self.q = mlp([latent_dim, *hidden, n_actions])
-        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=lr)
+        self.optimizer = adam(self.q.parameters(), lr)
         self.target_update_period = target_update_period
         self.double_dqn = double_dqn
         self.target = copy.deepcopy(self.q).requires_grad_(False) if target_update_period else None

@@ -68,7 +68,9 @@ def greedy_success(
 def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     """Over all 192 x 6 true transitions, from each macrostate's reference latent: how often
     M's most likely next state shows the right macrostate (read by the encoder's classifier),
-    and how often r (rounded to the nearest of +50, -5, -1) and d are right at that state."""
+    and how often r (rounded to the nearest of +50, -5, -1) and d are right at that state.
+    ``transition_sampled`` is what imagination consumes: how often a *sample* of M (component,
+    then Gaussian; fixed seed) from a non-terminal state shows the right next macrostate."""
     states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
     actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
     truth = apply_actions(states, actions)
@@ -79,6 +81,9 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     right_state = (encoder.classify(next_z).numpy() == truth).all(-1)
     # Terminal states never start a real transition, so M sees only moves from the others.
     seen = ~is_terminal(states, task)
+    generator = torch.Generator().manual_seed(0)
+    sampled = model.mdn.sample(z[seen], torch.as_tensor(actions[seen]), generator)
+    right_sample = (encoder.classify(sampled).numpy() == truth[seen]).all(-1)
     levels = torch.tensor([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
     reward = levels[(model.reward(next_z)[:, None] - levels).abs().argmin(-1)].numpy()
     terminal = model.terminal.is_terminal(next_z).numpy()
@@ -86,6 +91,7 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     return {
         "transition": float(right_state.mean()),
         "transition_nonterminal": float(right_state[seen].mean()),
+        "transition_sampled": float(right_sample.mean()),
         "reward": float((reward == rewards(truth, task)).mean()),
         "terminal": float((terminal == is_terminal(truth, task)).mean()),
     }

@@ -265,10 +265,15 @@ def train_vae(
 def fit_classifier(
     vae: ConvVAE, config: VisionConfig, data: VisionData, folder: Path
 ) -> LatentClassifier:
-    """Fit the latent classifier on encoded means of training images and save it."""
+    """Fit the latent classifier on training images' encoded means and one posterior sample of
+    each, so it also reads latents drawn from N(mu, sigma) (what M's samples look like: noise
+    of scale ~1 in the dimensions V leaves unused) and save it."""
     n = min(config.n_classifier_fit, len(data.train_images))
-    mu, _ = encode_images(vae, data.train_images[:n])
+    mu, sigma = encode_images(vae, data.train_images[:n])
+    generator = torch.Generator().manual_seed(config.seed)
+    sample = mu + sigma * torch.randn(mu.shape, generator=generator)
+    states = torch.as_tensor(data.train_states[:n])
     classifier = LatentClassifier(config.latent_dim)
-    classifier.fit(mu, torch.as_tensor(data.train_states[:n]), seed=config.seed)
+    classifier.fit(torch.cat([mu, sample]), torch.cat([states, states]), seed=config.seed)
     save_tensors(folder / "classifier.safetensors", classifier.state_dict())
     return classifier
