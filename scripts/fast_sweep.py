@@ -48,7 +48,8 @@ def main() -> None:
         for future in [pool.submit(job, *j, args) for j in jobs]:
             future.result()
     print(
-        "| task | method | success % mean (std) | M transition accuracy % (non-terminal) | runs |"
+        "| task | method | success % mean (std) | M accuracy %: all / non-terminal / sampled "
+        "| runs |"
     )
     print("| --- | --- | --- | --- | --- |")
     for task in args.tasks.split(","):
@@ -57,9 +58,13 @@ def main() -> None:
                      for run, t, m, _ in jobs if t == task and m == method
                      and (run / "evaluation.json").is_file()]  # fmt: skip
             success = 100 * np.array([r["success"] for r in found])
-            acc = 100 * np.array([r["model_accuracy"]["transition_nonterminal"] for r in found])
+            accuracy = "-"
+            if method == "augmented":
+                keys = ("transition", "transition_nonterminal", "transition_sampled")
+                means = [100 * np.mean([r["model_accuracy"][k] for r in found]) for k in keys]
+                accuracy = " / ".join(f"{m:.1f}" for m in means)
             print(f"| {task} | {method} | {success.mean():.2f} ({success.std(ddof=1):.2f}) | "
-                  f"{acc.mean():.1f} | {len(found)} |")  # fmt: skip
+                  f"{accuracy} | {len(found)} |")  # fmt: skip
 
 
 if __name__ == "__main__":
