@@ -178,22 +178,9 @@ def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> 
     test reconstruction loss and KL per image, latent-classifier accuracy on fresh images."""
     from rich.table import Table
 
-    from imagine.vision_report import vision_report
-    from imagine.vision_training import (
-        evaluate_vae,
-        fresh_images_config,
-        load_classifier,
-        load_vae,
-        make_data,
-    )
+    from imagine.vision_report import report_run
 
-    vae, config, epoch = load_vae(run)
-    classifier = load_classifier(run, config.latent_dim)
-    data = make_data(config)
-    test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
-    report = vision_report(
-        vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config)
-    )
+    report, epoch = report_run(run)
     table = Table(title=f"V after {epoch} epochs ({run})")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -295,6 +282,78 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
+
+
+@app.command("reproduce")
+def reproduce_study(
+    out: Annotated[Path, typer.Argument(help="Study folder (resumed if it holds one).")],
+    preset: PresetOption = "fast",
+    tasks: Annotated[str, typer.Option(help="Comma-separated tasks.")] = "original,hard",
+    seeds: Annotated[int, typer.Option(help="Agents per (task, method).")] = 5,
+    budgets: Annotated[
+        str, typer.Option(help="Comma-separated training-episode budgets.")
+    ] = "2000,3000,4000,5000,6000",
+    backend: Annotated[str, typer.Option(help="local (processes) or ray.")] = "local",
+    workers: Annotated[int, typer.Option(help="Runs at once (one torch thread each).")] = 2,
+    address: Annotated[
+        str | None, typer.Option(help="Address of an existing Ray cluster (ray backend).")
+    ] = None,
+    vae: Annotated[
+        Path | None, typer.Option(help="Reuse this V run instead of training V into OUT/vae.")
+    ] = None,
+    oracle: Annotated[bool, typer.Option(help="Feed C and M the true macrostate.")] = False,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="KEY=VALUE agent config over the preset (YAML value)."),
+    ] = None,
+) -> None:
+    """The paper's section V in one command: V, every (task, method, seed) agent evaluated at
+    every budget, Tables I and II, figures and REPORT.md in OUT. Run again to resume."""
+    from imagine.config import parse_assignments
+    from imagine.reproduce import StudyConfig, reproduce
+
+    def numbers(text: str, name: str) -> tuple[int, ...]:
+        try:
+            return tuple(int(x) for x in text.split(","))
+        except ValueError:
+            raise ImagineError(f"--{name} expects comma-separated integers, got {text!r}") from None
+
+    config = StudyConfig(
+        preset=preset, tasks=tuple(t.strip() for t in tasks.split(",")), seeds=seeds,
+        budgets=numbers(budgets, "budgets"), backend=backend, workers=workers, address=address,
+        vae_run=None if vae is None else str(vae), oracle=oracle,
+        overrides=parse_assignments(set_ or []),
+    )  # fmt: skip
+    start = time.perf_counter()
+    total = len(config.tasks) * 2 * config.seeds
+    running: list[str] = []
+    with Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[running]}"), console=console) as bar:  # fmt: skip
+        task_id = bar.add_task("runs", total=total, running="")
+        finished = 0
+
+        def on_start(job) -> None:
+            running.append(job.name)
+            bar.update(task_id, running="running: " + ", ".join(running))
+
+        def on_done(job, error) -> None:
+            nonlocal finished
+            finished += 1
+            running.remove(job.name)
+            if error is not None:
+                console.print(f"[red]failed[/red] {escape(error)}")
+            bar.update(task_id, advance=1, running="running: " + ", ".join(running))
+
+        def log(message: str) -> None:
+            console.print(message)
+            if "already finished" in message:
+                bar.update(task_id, completed=int(message.split()[0]))
+
+        report, failures = reproduce(config, out, log, on_start, on_done)
+    console.print(f"study done in {time.perf_counter() - start:.0f} s; report: {report}")
+    if failures:
+        console.print(f"{len(failures)} run(s) failed; see {report}")
+        raise typer.Exit(1)
 
 
 def main() -> None:

@@ -106,3 +106,19 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
         "reward": float((reward == rewards(truth[seen], task)).mean()),
         "terminal": float((terminal == is_terminal(truth[seen], task)).mean()),
     }
+
+
+def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
+    """The random agent of Tables I and II: uniform actions in ``episodes`` test episodes."""
+    envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode=AutoresetMode.SAME_STEP)
+    envs.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    running = np.ones(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    while running.any():
+        _, reward, terminated, truncated, _ = envs.step(rng.integers(0, N_ACTIONS, episodes))
+        success |= running & (reward == REWARD_GOAL)
+        running &= ~(terminated | truncated)
+    n = int(success.sum())
+    low, high = wilson_interval(n, episodes)
+    return {"success": n / episodes, "ci_low": low, "ci_high": high, "episodes": episodes}

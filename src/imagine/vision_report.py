@@ -114,3 +114,24 @@ def vision_report(
     traversals_png(vae, test_images[0], folder / "traversals.png")
     write_json(folder / "report.json", report)
     return report
+
+
+def report_run(run: Path) -> tuple[dict[str, Any], int]:
+    """Write the PNGs and report.json of the V run folder ``run``; return the numbers and the
+    epochs V has finished."""
+    from imagine.vision_training import (
+        evaluate_vae,
+        fresh_images_config,
+        load_classifier,
+        load_vae,
+        make_data,
+    )
+
+    vae, config, epoch = load_vae(run)
+    classifier = load_classifier(run, config.latent_dim)
+    data = make_data(config)
+    test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
+    report = vision_report(
+        vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config)
+    )
+    return report, epoch

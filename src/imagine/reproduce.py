@@ -1,0 +1,212 @@
+"""`imagine reproduce`: the paper's experimental section as one command (DESIGN.md section 3).
+
+Into ``OUT``: ``vae/`` (V, trained once unless a V run is given), ``runs/<task>-<method>-<seed>/``
+(every agent, evaluated at every budget), ``tables/`` (Tables I and II, Markdown and CSV),
+``figures/`` (success against episodes, % increase, M's accuracy, V's reconstructions),
+``random.json`` (the random agent) and ``REPORT.md``. Rerunning picks up where a stopped study
+was: finished runs are read back, never run again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from imagine.checkpoint import atomic_write_text, read_json, write_json
+from imagine.config import AGENT_PRESETS, VISION_PRESETS, agent_preset, check_preset
+from imagine.errors import ConfigError
+from imagine.experiments import Job, LocalRunner, RayRunner, load_evaluations, study_jobs
+from imagine.report import (
+    accuracy_figure,
+    claims,
+    increase_figure,
+    success_figure,
+    summarize,
+    write_tables,
+)
+
+RANDOM_EPISODES = 10_000
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """What `imagine reproduce` runs."""
+
+    preset: str = "fast"
+    tasks: tuple[str, ...] = ("original", "hard")
+    seeds: int = 5
+    budgets: tuple[int, ...] = (2000, 3000, 4000, 5000, 6000)
+    backend: str = "local"
+    workers: int = 2
+    address: str | None = None
+    vae_run: str | None = None
+    """An existing V run to reuse; default: train V into OUT/vae with the preset."""
+    oracle: bool = False
+    """Feed C and M the true macrostate (no V)."""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Agent config fields over the preset (--set)."""
+
+    def __post_init__(self) -> None:
+        from imagine.env.rules import TASKS
+
+        check_preset(self.preset)
+        for task in self.tasks:
+            if task not in TASKS:
+                raise ConfigError(f"unknown task {task!r}; choose from {', '.join(TASKS)}")
+        if self.seeds < 1:
+            raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if not self.budgets or min(self.budgets) < 1:
+            raise ConfigError(f"budgets must be positive episode counts, got {self.budgets}")
+        if self.backend not in ("local", "ray"):
+            raise ConfigError(f"unknown backend {self.backend!r}; choose local or ray")
+        if self.workers < 1:
+            raise ConfigError(f"workers must be at least 1, got {self.workers}")
+        # every budget's agent config must be valid before anything runs
+        for budget in self.budgets:
+            agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
+
+
+def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -> str | None:
+    """The V run the agents use: the given one, or V trained (or resumed) into OUT/vae."""
+    if config.oracle:
+        return None
+    if config.vae_run is not None:
+        return config.vae_run
+    from imagine.config import vision_preset
+    from imagine.vision_training import train_vae
+
+    folder = out / "vae"
+    vision = vision_preset(config.preset)
+    log(f"training V ({config.preset} preset) into {folder}")
+    train_vae(vision, folder, device="cpu")
+    if not (folder / "reconstructions.png").is_file():
+        from imagine.vision_report import report_run
+
+        report_run(folder)
+    return str(folder)
+
+
+def random_agents(tasks: tuple[str, ...], out: Path) -> dict[str, float]:
+    """Success rate of the random agent per task (cached in OUT/random.json)."""
+    from imagine.evaluate import random_success
+
+    path = out / "random.json"
+    cached = read_json(path, "random-agent results") if path.is_file() else {}
+    for task in tasks:
+        if task not in cached:
+            cached[task] = random_success(task, RANDOM_EPISODES, seed=0)["success"]
+    write_json(path, cached)
+    return {task: cached[task] for task in tasks}
+
+
+def deviations(preset: str) -> list[str]:
+    """The preset's departures from the paper's settings, one line each."""
+    lines = [f"- agent `{k}` = {v!r}" for k, v in AGENT_PRESETS[preset].items()
+             if k != "episodes"]  # the budgets set the episodes  # fmt: skip
+    lines += [f"- V `{k}` = {v!r}" for k, v in VISION_PRESETS[preset].items()]
+    return lines or ["- none: every setting is the paper's"]
+
+
+def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list[str]) -> Path:
+    """Tables, figures and REPORT.md from whatever evaluations exist."""
+    evaluations = load_evaluations(jobs)
+    if not evaluations:
+        raise ConfigError(f"no finished evaluations in {out / 'runs'} to report")
+    rows = summarize(evaluations)
+    random = random_agents(config.tasks, out)
+    tables = write_tables(out, rows, random)
+    figures = out / "figures"
+    figures.mkdir(exist_ok=True)
+    made = [success_figure(rows, figures / "success.png"),
+            increase_figure(rows, figures / "increase.png")]  # fmt: skip
+    augmented = [Path(j.folder) for j in jobs if j.method == "augmented"]
+    accuracy = accuracy_figure(augmented, figures / "model_accuracy.png")
+    if accuracy is not None:
+        made.append(accuracy)
+    vae_run = jobs[0].vae_run if jobs else None
+    if vae_run is not None and (Path(vae_run) / "reconstructions.png").is_file():
+        shutil.copyfile(Path(vae_run) / "reconstructions.png", figures / "reconstructions.png")
+        made.append(figures / "reconstructions.png")
+    agent = agent_preset(config.preset, **config.overrides)
+    text = [
+        "# Reproduction of Thabet, Patacchiola and Cangelosi (2019), section V",
+        "",
+        f"Preset `{config.preset}`; tasks {', '.join(config.tasks)}; {config.seeds} seeds; "
+        f"budgets {', '.join(map(str, config.budgets))} training episodes; each agent tested "
+        f"with {agent.eval_episodes} greedy episodes. Encoder: "
+        f"{'oracle (true macrostate)' if config.oracle else f'V from `{vae_run}`'}. "
+        f"Epsilon counts t as the {agent.eps_time}. One run per seed, evaluated at every budget.",
+        "",
+        "## Deviations from the paper's settings",
+        "",
+        *deviations(config.preset),
+        *[f"- `--set {k}={v!r}`" for k, v in config.overrides.items()],
+        "",
+        "## What our numbers say about the paper's claims",
+        "",
+        *claims(rows),
+        "",
+    ]
+    for task, table in tables.items():
+        name = "Table I (original task)" if task == "original" else "Table II (hard task)"
+        text += [f"## {name}", "", "Success % of greedy test episodes, mean (std) over seeds; "
+                 "IQM with 95% bootstrap interval (rliable protocol); the paper's numbers at "
+                 "right.", "", table]  # fmt: skip
+    text += ["## Figures", "", *[f"![{p.stem}](figures/{p.name})" for p in made], ""]
+    if failures:
+        text += ["## Runs that failed", "", *[f"- {f}" for f in failures], ""]
+    path = out / "REPORT.md"
+    atomic_write_text(path, "\n".join(text))
+    return path
+
+
+def reproduce(
+    config: StudyConfig,
+    out: str | Path,
+    log: Callable[[str], None] = print,
+    on_start: Callable[[Job], None] | None = None,
+    on_done: Callable[[Job, str | None], None] | None = None,
+) -> tuple[Path, list[str]]:
+    """Run the study into ``out``; returns REPORT.md's path and the failed runs' messages."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    saved = out / "study.yaml"
+    mine = dataclasses.asdict(config)
+    if saved.is_file():
+        before = yaml.safe_load(saved.read_text())
+        keep = ("backend", "workers", "address")
+        if {k: v for k, v in before.items() if k not in keep} != {
+            k: v for k, v in yaml.safe_load(yaml.safe_dump(mine)).items() if k not in keep
+        }:
+            raise ConfigError(f"{out} holds a study with other settings; use a new folder")
+    atomic_write_text(saved, yaml.safe_dump(mine))
+    vae_run = prepare_vision(config, out, log)
+    jobs = study_jobs(
+        out, config.tasks, config.seeds, config.budgets, preset=config.preset,
+        encoder="oracle" if config.oracle else "vae", vae_run=vae_run,
+        overrides=tuple(sorted(config.overrides.items())),
+    )  # fmt: skip
+    todo = [job for job in jobs if not job.finished()]
+    log(f"{len(jobs) - len(todo)} of {len(jobs)} runs already finished")
+    failures: list[str] = []
+
+    def done(job: Job, error: str | None) -> None:
+        if error is not None:
+            failures.append(error)
+        if on_done is not None:
+            on_done(job, error)
+
+    if todo:
+        runner = (
+            LocalRunner(config.workers)
+            if config.backend == "local"
+            else RayRunner(config.workers, config.address, str(out / "ray"))
+        )
+        runner.run(todo, on_start or (lambda job: None), done)
+    return write_report(config, out, jobs, failures), failures

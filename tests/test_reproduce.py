@@ -1,0 +1,155 @@
+"""`imagine reproduce`: every table, figure and report file; reruns that run nothing new; a
+study killed mid-way that resumes without redoing finished runs; Ray gives local's numbers."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imagine.errors import ConfigError
+from imagine.experiments import Job, LocalRunner, RayRunner, run_job
+from imagine.report import claims, iqm_interval, markdown_table, summarize
+from imagine.reproduce import StudyConfig
+
+IMAGINE = str(Path(sys.executable).parent / "imagine")
+SMOKE = ["--preset", "smoke", "--seeds", "2", "--set", "imagination_start=10",
+         "--set", "accuracy_every=20"]  # fmt: skip
+
+
+def reproduce(out: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([IMAGINE, "reproduce", str(out), *SMOKE, *args],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+
+
+def evaluation_times(out: Path) -> dict[str, int]:
+    return {str(p): p.stat().st_mtime_ns for p in sorted(out.glob("runs/*/evaluation-*.json"))}
+
+
+def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
+    out = tmp_path / "study"
+    done = reproduce(out, "--tasks", "original,hard", "--budgets", "20,40")
+    assert done.returncode == 0, done.stderr
+    for name in ["REPORT.md", "random.json", "tables/table_original.md", "tables/table_hard.md",
+                 "tables/table_original.csv", "tables/table_hard.csv", "figures/success.png",
+                 "figures/increase.png", "figures/model_accuracy.png",
+                 "figures/reconstructions.png"]:  # fmt: skip
+        assert (out / name).is_file(), name
+    assert len(list(out.glob("runs/*/evaluation-*.json"))) == 2 * 2 * 2 * 2
+    table = (out / "tables" / "table_original.md").read_text().splitlines()
+    assert table[0].startswith("| Episodes | Base DQN | Augmented | % increase")
+    assert [line.split("|")[1].strip() for line in table[2:]] == ["20", "40", "random agent"]
+    assert all(line.count("|") == 10 for line in table)
+    with open(out / "tables" / "table_hard.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["budget"], r["method"]) for r in rows] == [
+        ("20", "baseline"),
+        ("20", "augmented"),
+        ("40", "baseline"),
+        ("40", "augmented"),
+    ]
+    assert {"mean", "std", "iqm", "iqm_low", "iqm_high", "paper_mean", "n"} <= set(rows[0])
+    report = (out / "REPORT.md").read_text()
+    assert "Table I (original task)" in report and "Table II (hard task)" in report
+    assert "Deviations from the paper" in report and "claims" in report
+    before = evaluation_times(out)
+    again = reproduce(out, "--tasks", "original,hard", "--budgets", "20,40")
+    assert again.returncode == 0, again.stderr
+    assert "8 of 8 runs already finished" in again.stderr
+    assert evaluation_times(out) == before
+
+
+def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path):
+    out = tmp_path / "study"
+    args = [IMAGINE, "reproduce", str(out), *SMOKE, "--tasks", "original", "--oracle",
+            "--budgets", "30,60", "--workers", "1"]  # fmt: skip
+    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True)  # fmt: skip
+    deadline = time.monotonic() + 240
+    while len(evaluation_times(out)) < 3 and process.poll() is None:
+        assert time.monotonic() < deadline, "the study never got going"
+        time.sleep(0.2)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    finished = evaluation_times(out)
+    assert 0 < len(finished) < 8, "kill the study mid-way"
+    contents = {p: Path(p).read_text() for p in finished}
+    done = subprocess.run(args, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    after = evaluation_times(out)
+    assert len(after) == 2 * 2 * 2
+    assert {p: after[p] for p in finished} == finished  # nothing finished was redone
+    assert {p: Path(p).read_text() for p in finished} == contents
+    assert not list(out.rglob(".*.tmp"))  # no half-written file left behind
+
+
+def test_ray_backend_gives_the_local_numbers(tmp_path):
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        pytest.skip("Ray is not installed (pip install 'imagine[ray]')")
+    jobs = [Job(str(tmp_path / backend / "run"), "original", "augmented", 0, (30,),
+                preset="smoke", encoder="oracle", overrides=(("imagination_start", 15),))
+            for backend in ("local", "ray")]  # fmt: skip
+    errors = []
+    LocalRunner(1).run([jobs[0]], lambda job: None, lambda job, e: errors.append(e))
+    try:
+        RayRunner(1, temp_dir=str(tmp_path / "ray-tmp")).run(
+            [jobs[1]], lambda job: None, lambda job, e: errors.append(e)
+        )
+    except Exception as exc:  # Ray present but unable to start here
+        pytest.skip(f"Ray could not start: {exc}")
+    assert errors == [None, None]
+    local, remote = (json.loads(job.evaluation_path(30).read_text()) for job in jobs)
+    assert local == remote
+
+
+def test_run_job_reads_back_finished_budgets(tmp_path):
+    job = Job(str(tmp_path / "run"), "original", "baseline", 0, (20,), preset="smoke",
+              encoder="oracle")  # fmt: skip
+    first = run_job(job)
+    mtime = job.evaluation_path(20).stat().st_mtime_ns
+    assert run_job(job) == first and job.evaluation_path(20).stat().st_mtime_ns == mtime
+    assert first[0]["model_accuracy"] is None  # a baseline does not train M
+
+
+def test_statistics_and_tables():
+    values = np.array([10.0, 20.0, 30.0, 40.0, 100.0])
+    iqm, low, high = iqm_interval(values)
+    assert iqm == pytest.approx(30.0)  # trims one run from each end of five
+    assert low <= iqm <= high
+    evaluations = [{"task": "hard", "budget": 2000, "method": m, "seed": s,
+                    "success": (0.5 if m == "baseline" else 0.6) + 0.01 * s}
+                   for m in ("baseline", "augmented") for s in range(5)]  # fmt: skip
+    rows = summarize(evaluations)
+    assert [r["method"] for r in rows] == ["baseline", "augmented"]
+    assert rows[0]["mean"] == pytest.approx(52.0) and rows[0]["paper_mean"] == 30.12
+    table = markdown_table("hard", rows, 0.0339)
+    assert "| 2000 | 52.00 (1.58) | 62.00 (1.58) | 19.23 |" in table
+    assert "30.12 (4.16) | 53.78 (3.16) | 78.55 |" in table
+    assert "3.39" in table.splitlines()[-1]
+    said = "\n".join(claims(rows))
+    assert "hard: augmented beats baseline** (supported" in said
+    assert "at least as good as the paper's**: at 1 of 1 budgets (2000)" in said
+
+
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ({"tasks": ("easy",)}, "unknown task"),
+        ({"seeds": 0}, "seeds must be at least 1"),
+        ({"budgets": ()}, "budgets must be positive"),
+        ({"backend": "slurm"}, "unknown backend"),
+        ({"preset": "huge"}, "preset"),
+        ({"budgets": (500,)}, "beyond the episode budget"),
+    ],
+)
+def test_bad_study_settings(values, message):
+    with pytest.raises(ConfigError, match=message):
+        StudyConfig(**values)
