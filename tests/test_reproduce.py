@@ -39,7 +39,8 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     for name in ["REPORT.md", "random.json", "tables/table_original.md", "tables/table_hard.md",
                  "tables/table_original.csv", "tables/table_hard.csv", "figures/success.png",
                  "figures/increase.png", "figures/model_accuracy.png",
-                 "figures/reconstructions.png"]:  # fmt: skip
+                 "figures/reconstructions.png", "figures/plan_rollout_original.png",
+                 "figures/generalization_hard.png"]:  # fmt: skip
         assert (out / name).is_file(), name
     assert len(list(out.glob("runs/*/evaluation-*.json"))) == 2 * 2 * 2 * 2
     table = (out / "tables" / "table_original.md").read_text().splitlines()
@@ -58,6 +59,9 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     report = (out / "REPORT.md").read_text()
     assert "Table I (original task)" in report and "Table II (hard task)" in report
     assert "Deviations from the paper" in report and "claims" in report
+    assert "original, plans" in report and "hard, model generalization" in report
+    last = json.loads((out / "runs" / "hard-augmented-1" / "evaluation-00040.json").read_text())
+    assert last["plans"]["trials"] == 20 and last["generalization"]["trials"] == 20
     before = evaluation_times(out)
     again = reproduce(out, "--tasks", "original,hard", "--budgets", "20,40")
     assert again.returncode == 0, again.stderr

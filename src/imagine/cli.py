@@ -284,6 +284,54 @@ def evaluate_agent(
           .format(**accuracy))  # fmt: skip
 
 
+@app.command("plan")
+def plan_command(
+    run: Annotated[Path, typer.Argument(help="An agent run folder.")],
+    trials: Annotated[int, typer.Option(min=1, help="Plans from random start states.")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the start states and images.")] = 0,
+) -> None:
+    """Generate plans from one observation with M and C (paper section V, Generating Plans),
+    execute them open-loop and compare their length with the optimal; writes RUN/plans.json
+    and RUN/plan_rollout.png (V's decoding of an imagined plan of length 5, paper Fig. 5)."""
+    from imagine.agent import load_agent
+    from imagine.checkpoint import write_json
+    from imagine.planning import plan_trials, rollout_png, summarize_plans
+
+    agent = load_agent(run)
+    summary = summarize_plans(plan_trials(agent, trials, seed))
+    write_json(run / "plans.json", summary)
+    png = rollout_png(agent, run / "plan_rollout.png", seed=seed)
+    print(f"{run}: {summary['successes']} of {trials} plans succeeded, "
+          f"{summary['optimal']} optimal (paper: 17 of 20, every success optimal)")  # fmt: skip
+    print(f"wrote {run / 'plans.json'}" + (f" and {png}" if png else ""))
+
+
+@app.command("generalize")
+def generalize_command(
+    run: Annotated[Path, typer.Argument(help="An agent run folder.")],
+    trials: Annotated[
+        int, typer.Option(min=1, help="Random (terminal state, action) trials.")
+    ] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the trials and images.")] = 0,
+) -> None:
+    """M's next state from terminal states it never trained on (paper section V, Model
+    Generalization): the 20-trial test and all terminal states x actions; writes
+    RUN/generalization.json and RUN/generalization.png (paper Fig. 7)."""
+    from imagine.agent import load_agent
+    from imagine.checkpoint import write_json
+    from imagine.generalization import generalization, generalization_png
+
+    agent = load_agent(run)
+    result = generalization(agent, trials, seed)
+    write_json(run / "generalization.json", result)
+    png = generalization_png(agent, run / "generalization.png", seed)
+    print(f"{run}: {result['trials_right']} of {trials} right "
+          f"({100 * result['trial_accuracy']:.0f}%; paper 75%); over all "
+          f"{result['all_terminal_transitions']} terminal transitions "
+          f"{100 * result['all_terminal_accuracy']:.1f}%")  # fmt: skip
+    print(f"wrote {run / 'generalization.json'}" + (f" and {png}" if png else ""))
+
+
 @app.command("reproduce")
 def reproduce_study(
     out: Annotated[Path, typer.Argument(help="Study folder (resumed if it holds one).")],

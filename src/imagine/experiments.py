@@ -48,6 +48,10 @@ class Job:
     vae_run: str | None = None
     overrides: tuple[tuple[str, Any], ...] = ()
     """Agent config fields over the preset, as (key, value) pairs."""
+    plan_budget: int | None = None
+    """Budget at which an augmented agent also generates plans (paper: 6000)."""
+    generalize_budget: int | None = None
+    """Budget at which an augmented agent's M is tested on terminal states (paper: 5000)."""
 
     @property
     def name(self) -> str:
@@ -112,9 +116,29 @@ def run_job(job: Job) -> list[dict[str, Any]]:
             accuracy = model_accuracy(agent.model, agent.encoder, job.task)
         result = {"task": job.task, "method": job.method, "seed": job.seed, "budget": budget,
                   "time_steps": agent.t, **result, "model_accuracy": accuracy}  # fmt: skip
+        result |= studies_of_m(job, agent, budget)
         write_json(path, result)
         results.append(result)
     return results
+
+
+def studies_of_m(job: Job, agent, budget: int) -> dict[str, Any]:
+    """Plans and generalization of an augmented agent at their budgets (with PNGs of the
+    imagined rollout and of a prediction from a terminal state in the run folder)."""
+    from imagine.generalization import generalization, generalization_png
+    from imagine.planning import plan_trials, rollout_png, summarize_plans
+
+    out: dict[str, Any] = {}
+    if job.method != "augmented":
+        return out
+    folder = Path(job.folder)
+    if budget == job.plan_budget:
+        out["plans"] = summarize_plans(plan_trials(agent, 20, seed=job.seed))
+        rollout_png(agent, folder / f"plan_rollout-{budget:05d}.png", seed=job.seed)
+    if budget == job.generalize_budget:
+        out["generalization"] = generalization(agent, 20, seed=job.seed)
+        generalization_png(agent, folder / f"generalization-{budget:05d}.png", seed=job.seed)
+    return out
 
 
 class Runner(Protocol):

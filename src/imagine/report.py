@@ -259,3 +259,35 @@ def accuracy_figure(run_folders: list[Path], out: Path) -> Path | None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     return _save(fig, out)
+
+
+def m_studies(evaluations: list[dict[str, Any]]) -> list[str]:
+    """REPORT.md lines on plans and generalization, per task, from the augmented agents."""
+    lines = []
+    for task in dict.fromkeys(e["task"] for e in evaluations):
+        plans = [e for e in evaluations if e["task"] == task and "plans" in e]
+        if plans:
+            trials = sum(e["plans"]["trials"] for e in plans)
+            ok = sum(e["plans"]["successes"] for e in plans)
+            optimal = sum(e["plans"]["optimal"] for e in plans)
+            per_seed = ", ".join(f"{e['plans']['successes']}/{e['plans']['trials']}"
+                                 for e in sorted(plans, key=lambda e: e["seed"]))  # fmt: skip
+            lines.append(
+                f"- **{task}, plans** (augmented agents at {plans[0]['budget']} episodes, 20 "
+                f"plans each): {ok} of {trials} succeeded ({100 * ok / trials:.0f}%), "
+                f"{optimal} optimal ({100 * optimal / max(ok, 1):.0f}% of successes); per seed "
+                f"{per_seed}. Paper (robot, original task): 17 of 20, every success optimal."
+            )
+        tests = [e for e in evaluations if e["task"] == task and "generalization" in e]
+        if tests:
+            trial = np.array([100 * e["generalization"]["trial_accuracy"] for e in tests])
+            every = np.array([100 * e["generalization"]["all_terminal_accuracy"] for e in tests])
+            std = trial.std(ddof=1) if len(trial) > 1 else 0.0
+            lines.append(
+                f"- **{task}, model generalization** (augmented agents at {tests[0]['budget']} "
+                f"episodes): M's next state from terminal states right in {trial.mean():.1f}% "
+                f"({std:.1f}) of 20 random trials, {every.mean():.1f}% over all "
+                f"{tests[0]['generalization']['all_terminal_transitions']} terminal "
+                f"transitions. Paper: 75% of 20 trials after 5000 episodes."
+            )
+    return lines

@@ -26,6 +26,7 @@ from imagine.report import (
     accuracy_figure,
     claims,
     increase_figure,
+    m_studies,
     success_figure,
     summarize,
     write_tables,
@@ -133,6 +134,13 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
     if vae_run is not None and (Path(vae_run) / "reconstructions.png").is_file():
         shutil.copyfile(Path(vae_run) / "reconstructions.png", figures / "reconstructions.png")
         made.append(figures / "reconstructions.png")
+    for job in jobs:  # seed 0's pictures of plans and generalization
+        for kind in ("plan_rollout", "generalization"):
+            for png in sorted(Path(job.folder).glob(f"{kind}-*.png")):
+                if job.seed == 0:
+                    target = figures / f"{kind}_{job.task}.png"
+                    shutil.copyfile(png, target)
+                    made.append(target)
     agent = agent_preset(config.preset, **config.overrides)
     text = [
         "# Reproduction of Thabet, Patacchiola and Cangelosi (2019), section V",
@@ -151,6 +159,7 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
         "## What our numbers say about the paper's claims",
         "",
         *claims(rows),
+        *m_studies(evaluations),
         "",
     ]
     for task, table in tables.items():
@@ -190,7 +199,8 @@ def reproduce(
     jobs = study_jobs(
         out, config.tasks, config.seeds, config.budgets, preset=config.preset,
         encoder="oracle" if config.oracle else "vae", vae_run=vae_run,
-        overrides=tuple(sorted(config.overrides.items())),
+        overrides=tuple(sorted(config.overrides.items())), plan_budget=max(config.budgets),
+        generalize_budget=5000 if 5000 in config.budgets else max(config.budgets),
     )  # fmt: skip
     todo = [job for job in jobs if not job.finished()]
     log(f"{len(jobs) - len(todo)} of {len(jobs)} runs already finished")

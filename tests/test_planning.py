@@ -1,0 +1,66 @@
+"""Plans (paper Fig. 5) and model generalization (paper Fig. 7): the plan judge knows an optimal
+plan, a longer successful one and a failed one; the commands write their files."""
+
+import itertools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imagine.env.rules import apply_actions, is_goal, is_illegal, optimal_plan_length, start_states
+from imagine.planning import judge_plan
+
+IMAGINE = str(Path(sys.executable).parent / "imagine")
+
+
+def outcome(start, actions, task):
+    """Brute-force truth: 'goal' at the last action, 'early' before it, or 'fail'."""
+    state = np.asarray(start)
+    for i, a in enumerate(actions):
+        state = apply_actions(state, np.asarray(a))
+        if is_illegal(state[None])[0]:
+            return "fail"
+        if is_goal(state[None], task)[0]:
+            return "goal" if i == len(actions) - 1 else "early"
+    return "fail"
+
+
+@pytest.mark.parametrize("task", ["original", "hard"])
+def test_the_plan_judge_knows_optimal_longer_and_failed_plans(task):
+    start = next(s for s in start_states(task) if optimal_plan_length(tuple(s), task) == 2)
+    plans = {n: [p for p in itertools.product(range(6), repeat=n)
+                 if outcome(start, p, task) == "goal"] for n in (1, 2, 4)}  # fmt: skip
+    assert not plans[1] and plans[2] and plans[4]
+    optimal = judge_plan(start, list(plans[2][0]), task)
+    assert optimal.success and optimal.optimal and optimal.optimal_length == 2
+    longer = judge_plan(start, list(plans[4][0]), task)
+    assert longer.success and not longer.optimal and longer.steps == 4
+    failed_plan = next(p for p in itertools.product(range(6), repeat=2)
+                       if outcome(start, p, task) == "fail")  # fmt: skip
+    failed = judge_plan(start, list(failed_plan), task)
+    assert not failed.success and not failed.optimal
+    assert not judge_plan(start, [], task).success  # an empty plan solves nothing
+
+
+def test_plan_and_generalize_commands(tmp_path):
+    run = tmp_path / "run"
+    done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
+                           "--episodes", "30", "--set", "imagination_start=10"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    done = subprocess.run([IMAGINE, "plan", str(run), "--trials", "5"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "plans succeeded" in done.stdout
+    plans = json.loads((run / "plans.json").read_text())
+    assert plans["trials"] == 5 and len(plans["plans"]) == 5
+    assert all(p["optimal_length"] is not None for p in plans["plans"])  # from start states
+    done = subprocess.run([IMAGINE, "generalize", str(run), "--trials", "7"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    result = json.loads((run / "generalization.json").read_text())
+    assert result["trials"] == 7 and result["all_terminal_transitions"] == 138 * 6
+    assert 0.0 <= result["all_terminal_accuracy"] <= 1.0
