@@ -15,8 +15,8 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/imagine env show --task hard --seed 0 --out results/contact_sheet.png
-	@echo "Contact sheet written to results/contact_sheet.png"
+	$(BIN)/imagine reproduce results --preset fast
+	@echo "Report: results/REPORT.md (tables in results/tables, figures in results/figures)"
 
 test: $(STAMP)
 	$(BIN)/ruff check .
@@ -32,6 +32,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/env_speed.py
 	$(BIN)/python benchmarks/vae_speed.py
+	$(BIN)/python benchmarks/agent_speed.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache

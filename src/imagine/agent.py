@@ -74,7 +74,7 @@ class Agent:
             target_update_period=config.target_update_period, double_dqn=config.double_dqn,
         )  # fmt: skip
         self.model = WorldModel(d, n_components=config.n_components, dropout=config.dropout,
-                                lr=config.model_lr)  # fmt: skip
+                                lr=config.model_lr, reward_hidden=config.reward_hidden)  # fmt: skip
         self.real = ReplayMemory(config.real_memory, real_fields(d))
         self.imaginary = ReplayMemory(config.imaginary_memory, imaginary_fields(d))
         self.generator = torch.Generator().manual_seed(config.seed)

@@ -202,7 +202,10 @@ def reproduce(
         overrides=tuple(sorted(config.overrides.items())), plan_budget=max(config.budgets),
         generalize_budget=5000 if 5000 in config.budgets else max(config.budgets),
     )  # fmt: skip
-    todo = [job for job in jobs if not job.finished()]
+    # the long (augmented) runs first, so no worker is left with one at the end
+    todo = sorted(
+        (job for job in jobs if not job.finished()), key=lambda j: j.method != "augmented"
+    )
     log(f"{len(jobs) - len(todo)} of {len(jobs)} runs already finished")
     failures: list[str] = []
 

@@ -148,10 +148,11 @@ class WorldModel(nn.Module):
         n_components: int = 5,
         dropout: float = 0.5,
         lr: float = 1e-3,
+        reward_hidden: int = 512,
     ) -> None:
         super().__init__()
         self.mdn = MDN(latent_dim, n_actions, n_components, dropout=dropout)
-        self.reward = RewardNet(latent_dim, dropout=dropout)
+        self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=dropout)
         self.terminal = TerminalNet(latent_dim, dropout=dropout)
         self.optimizer = adam(self.parameters(), lr)
 
@@ -165,7 +166,8 @@ class WorldModel(nn.Module):
             return mu + sigma * torch.randn(mu.shape, generator=generator, device=mu.device)
 
         z, next_z = draw(batch["mu"], batch["sigma"]), draw(batch["next_mu"], batch["next_sigma"])
-        self.train()
+        if not self.training:  # a recursive call over every module: skip it when it is a no-op
+            self.train()
         losses = {
             "mdn": self.mdn.loss(z, batch["action"], next_z),
             "reward": self.reward.loss(next_z, batch["reward"]),
