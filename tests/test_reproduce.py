@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from imagine.errors import ConfigError
-from imagine.experiments import Job, LocalRunner, RayRunner, run_job
+from imagine.experiments import Job, LocalRunner, RayRunner, run_job, study_jobs
 from imagine.report import claims, iqm_interval, markdown_table, summarize
 from imagine.reproduce import StudyConfig
 
@@ -157,3 +157,11 @@ def test_statistics_and_tables():
 def test_bad_study_settings(values, message):
     with pytest.raises(ConfigError, match=message):
         StudyConfig(**values)
+
+
+def test_one_run_per_seed_or_one_per_budget(tmp_path):
+    shared = study_jobs(tmp_path, ["hard"], 2, [3000, 2000])
+    assert len(shared) == 4 and all(job.budgets == (2000, 3000) for job in shared)
+    separate = study_jobs(tmp_path, ["hard"], 2, [3000, 2000], separate_runs=True)
+    assert len(separate) == 8 and {job.budgets for job in separate} == {(2000,), (3000,)}
+    assert len({job.folder for job in separate}) == 8

@@ -18,9 +18,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import signal
+import threading
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -41,7 +45,7 @@ from imagine.controller import Controller, epsilon
 from imagine.encoder import OracleEncoder, VaeEncoder
 from imagine.env import GesturePuzzleEnv, make_composer
 from imagine.env.rules import REWARD_GOAL
-from imagine.errors import CheckpointError, ConfigError
+from imagine.errors import CheckpointError, ConfigError, Interrupted, NumericalError
 from imagine.evaluate import model_accuracy
 from imagine.imagination import imagine_rollouts
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
@@ -49,6 +53,14 @@ from imagine.metrics import MetricsLogger
 from imagine.world_model import WorldModel
 
 FORMAT = "imagine-agent-2"
+
+NETWORK_OF = {
+    "losses/mdn": "M's MDN",
+    "losses/reward": "M's r-network",
+    "losses/terminal": "M's d-network",
+    "losses/controller_real": "C's (real batch)",
+    "losses/controller_imaginary": "C's (imaginary batch)",
+}
 
 
 def make_encoder(config: AgentConfig):
@@ -82,6 +94,7 @@ class Agent:
         self.env.reset(seed=config.seed)
         self.episode = 0  # episodes finished
         self.t = 0  # real time steps taken
+        self.saved_window: dict[str, list[float]] = {}
 
     def epsilon(self) -> float:
         c = self.config
@@ -152,6 +165,12 @@ class Agent:
             self.t += 1
             done = terminated or truncated
         self.episode += 1
+        for name, values in losses.items():
+            if not math.isfinite(values[-1]):
+                raise NumericalError(
+                    f"{NETWORK_OF[name]} loss became {values[-1]} at real time step {self.t} "
+                    f"(episode {self.episode}); the run keeps its last checkpoint"
+                )
         stats = {"charts/return": total, "charts/success": float(success),
                  "charts/episode_length": float(length), "charts/epsilon": eps,
                  "charts/imagined_transitions": float(imagined)}  # fmt: skip
@@ -160,7 +179,9 @@ class Agent:
 
     # --- checkpoints --------------------------------------------------------------------------
 
-    def save(self, folder: Path) -> None:
+    def save(self, folder: Path, window: dict[str, list[float]] | None = None) -> None:
+        """Checkpoint everything; ``window`` holds the episode statistics not yet averaged
+        into a metrics row, so a run stopped between rows resumes with the same rows."""
         tensors = {f"controller.{k}": v for k, v in self.controller.state_dict().items()}
         tensors |= optimizer_to_tensors(self.controller.optimizer, "controller_optim")
         tensors |= {f"model.{k}": v for k, v in self.model.state_dict().items()}
@@ -174,6 +195,7 @@ class Agent:
             "format": FORMAT, "episode": self.episode, "t": self.t,
             "controller_updates": self.controller.updates,
             "env_rng": json.loads(json.dumps(state)), "config": dataclasses.asdict(self.config),
+            "window": window or {},
         })  # fmt: skip
 
     def load(self, folder: Path) -> None:
@@ -200,6 +222,7 @@ class Agent:
         torch.set_rng_state(tensors["rng.global"])
         self.env.np_random.bit_generator.state = meta["env_rng"]
         self.episode, self.t = int(meta["episode"]), int(meta["t"])
+        self.saved_window = {k: [float(v) for v in vs] for k, vs in meta.get("window", {}).items()}
         self.controller.updates = int(meta["controller_updates"])
 
 
@@ -211,47 +234,91 @@ def saved_config(folder: Path) -> AgentConfig | None:
     return from_dict(AgentConfig, meta.get("config", {}), "agent")
 
 
-def train(
-    config: AgentConfig,
-    folder: str | Path,
-    on_episode: Callable[[int], None] | None = None,
-    threads: int | None = None,
-) -> Agent:
-    """Run Algorithm 1 into ``folder``, resuming a run that was stopped there."""
-    if threads is not None:
-        torch.set_num_threads(threads)
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
+    """The config of the run already in ``folder`` (None if there is none); an error if it is
+    another run's (only the episode budget may differ)."""
     saved = saved_config(folder)
     if saved is not None and dataclasses.replace(saved, episodes=config.episodes) != config:
         raise CheckpointError(
             f"{folder} holds a run with another config; use a new folder or the same settings"
         )
-    agent = Agent(config, make_encoder(config))
+    return saved
+
+
+def train(
+    config: AgentConfig,
+    folder: str | Path,
+    on_episode: Callable[[int], None] | None = None,
+    threads: int | None = None,
+    encoder: Any = None,
+) -> Agent:
+    """Run Algorithm 1 into ``folder``, resuming a run that was stopped there. ``encoder``:
+    one made already by :func:`make_encoder` (default: made here)."""
+    if threads is not None:
+        torch.set_num_threads(threads)
+    folder = Path(folder)
+    saved = check_folder(config, folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    agent = Agent(config, encoder if encoder is not None else make_encoder(config))
     if saved is not None:
         agent.load(folder)
     atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
     logger = MetricsLogger(folder, resume_step=agent.episode)
-    window: dict[str, list[float]] = defaultdict(list)
-    while agent.episode < config.episodes:
-        for key, value in agent.run_episode().items():
-            window[key].append(value)
-        e = agent.episode
-        if agent.trains_model and e % config.accuracy_every == 0:
-            for key, value in model_accuracy(agent.model, agent.encoder, config.task).items():
-                logger.record(f"model/{key}_accuracy", value)
-        if e % config.log_every == 0 or e == config.episodes:
-            for key, values in window.items():
-                logger.record(key, float(np.mean(values)))
-            logger.record("charts/time_steps", agent.t)
-            logger.dump(e)
-            window.clear()
-        if e % config.checkpoint_every == 0 or e == config.episodes:
-            agent.save(folder)
-        if on_episode is not None:
-            on_episode(e)
+    window: dict[str, list[float]] = defaultdict(list, agent.saved_window)
+    with StopSignals() as stop:
+        while agent.episode < config.episodes:
+            try:
+                stats = agent.run_episode()
+            except NumericalError:
+                logger.close()
+                raise
+            for key, value in stats.items():
+                window[key].append(value)
+            e = agent.episode
+            if agent.trains_model and e % config.accuracy_every == 0:
+                for key, value in model_accuracy(agent.model, agent.encoder, config.task).items():
+                    logger.record(f"model/{key}_accuracy", value)
+            if e % config.log_every == 0 or e == config.episodes:
+                for key, values in window.items():
+                    logger.record(key, float(np.mean(values)))
+                logger.record("charts/time_steps", agent.t)
+                logger.dump(e)
+                window.clear()
+            if e % config.checkpoint_every == 0 or e == config.episodes or stop.signal:
+                agent.save(folder, dict(window))
+            if on_episode is not None:
+                on_episode(e)
+            if stop.signal:
+                logger.close()
+                name = signal.Signals(stop.signal).name
+                raise Interrupted(
+                    f"{name}: stopped {folder} after episode {e} with a checkpoint; run the same "
+                    "command again to resume", stop.signal,
+                )  # fmt: skip
     logger.close()
     return agent
+
+
+class StopSignals:
+    """While active, SIGINT and SIGTERM only set ``signal`` (the training loop checkpoints and
+    stops at the end of the episode); outside the main thread it does nothing."""
+
+    def __init__(self) -> None:
+        self.signal = 0
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for number in (signal.SIGINT, signal.SIGTERM):
+                self._previous[number] = signal.signal(number, self._handle)
+        return self
+
+    def _handle(self, number: int, frame: Any) -> None:
+        self.signal = number
+
+    def __exit__(self, *exc: object) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
 
 
 def load_agent(folder: str | Path) -> Agent:

@@ -229,7 +229,7 @@ def train_agent(
 ) -> None:
     """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
     TensorBoard) and checkpoints. Run it again to resume."""
-    from imagine.agent import train
+    from imagine.agent import check_folder, make_encoder, train
     from imagine.config import agent_preset, load_yaml, parse_assignments
 
     overrides: dict = load_yaml(config_file) if config_file is not None else {}
@@ -240,12 +240,14 @@ def train_agent(
     if episodes is not None:
         overrides["episodes"] = episodes
     config = agent_preset(preset, **overrides)
+    check_folder(config, out)  # errors before any progress bar is drawn
+    encoder = make_encoder(config)
     start = time.perf_counter()
     with Progress(TextColumn(f"{config.method} {config.task} seed {config.seed}"), BarColumn(),
                   MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
         task_id = bar.add_task("episodes", total=config.episodes)
         agent = train(config, out, on_episode=lambda e: bar.update(task_id, completed=e),
-                      threads=threads)  # fmt: skip
+                      threads=threads, encoder=encoder)  # fmt: skip
     seconds = time.perf_counter() - start
     done = f"{agent.episode} episodes, {agent.t} time steps, {seconds:.0f} s"
     console.print(f"trained {out}: {done}; next: imagine evaluate {out}")
@@ -350,6 +352,9 @@ def reproduce_study(
         Path | None, typer.Option(help="Reuse this V run instead of training V into OUT/vae.")
     ] = None,
     oracle: Annotated[bool, typer.Option(help="Feed C and M the true macrostate.")] = False,
+    separate_runs: Annotated[
+        bool, typer.Option(help="One run per budget from scratch (default: one run per seed).")
+    ] = False,
     set_: Annotated[
         list[str] | None,
         typer.Option("--set", help="KEY=VALUE agent config over the preset (YAML value)."),
@@ -369,11 +374,11 @@ def reproduce_study(
     config = StudyConfig(
         preset=preset, tasks=tuple(t.strip() for t in tasks.split(",")), seeds=seeds,
         budgets=numbers(budgets, "budgets"), backend=backend, workers=workers, address=address,
-        vae_run=None if vae is None else str(vae), oracle=oracle,
+        vae_run=None if vae is None else str(vae), oracle=oracle, separate_runs=separate_runs,
         overrides=parse_assignments(set_ or []),
     )  # fmt: skip
     start = time.perf_counter()
-    total = len(config.tasks) * 2 * config.seeds
+    total = len(config.tasks) * 2 * config.seeds * (len(config.budgets) if separate_runs else 1)
     running: list[str] = []
     with Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[running]}"), console=console) as bar:  # fmt: skip
@@ -406,8 +411,13 @@ def reproduce_study(
 
 def main() -> None:
     """Entry point of the `imagine` command."""
+    from imagine.errors import Interrupted
+
     try:
         app()
+    except Interrupted as exc:
+        console.print(f"stopped: {escape(str(exc))}", highlight=False, soft_wrap=True)
+        sys.exit(128 + exc.signal_number)
     except (ImagineError, OSError) as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(2)

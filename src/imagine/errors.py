@@ -24,3 +24,15 @@ class DatasetFileError(ImagineError):
 
 class CheckpointError(ImagineError):
     """A checkpoint is missing, truncated, corrupt or of another architecture."""
+
+
+class NumericalError(ImagineError):
+    """A loss became NaN or infinite: the run stops, naming the network and the step."""
+
+
+class Interrupted(ImagineError):
+    """SIGINT or SIGTERM stopped a run after it wrote a checkpoint; rerun to resume."""
+
+    def __init__(self, message: str, signal_number: int) -> None:
+        super().__init__(message)
+        self.signal_number = signal_number

@@ -70,22 +70,27 @@ def study_jobs(
     seeds: int,
     budgets: Iterable[int],
     methods: Iterable[str] = ("baseline", "augmented"),
+    separate_runs: bool = False,
     **common: Any,
 ) -> list[Job]:
-    """Every (task, method, seed) job of a study, each in ``out/runs/<task>-<method>-<seed>``."""
+    """Every (task, method, seed) job of a study, each in ``out/runs/<task>-<method>-<seed>``
+    and evaluated at every budget; with ``separate_runs``, one job per budget as well, each
+    trained from scratch (``.../<task>-<method>-<seed>-e<budget>``), as the paper describes."""
     budgets = tuple(sorted(set(budgets)))
+    groups = [(f"-e{b}", (b,)) for b in budgets] if separate_runs else [("", budgets)]
     return [
         Job(
-            str(Path(out) / "runs" / f"{task}-{method}-{seed}"),
+            str(Path(out) / "runs" / f"{task}-{method}-{seed}{suffix}"),
             task,
             method,
             seed,
-            budgets,
+            group,
             **common,
         )
         for task in tasks
         for method in methods
         for seed in range(seeds)
+        for suffix, group in groups
     ]
 
 

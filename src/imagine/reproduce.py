@@ -50,6 +50,10 @@ class StudyConfig:
     """An existing V run to reuse; default: train V into OUT/vae with the preset."""
     oracle: bool = False
     """Feed C and M the true macrostate (no V)."""
+    separate_runs: bool = False
+    """One run per budget, each from scratch (the paper's wording), instead of one run per seed
+    evaluated at every budget (statistically the same: exploration and memories do not depend
+    on the budget)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Agent config fields over the preset (--set)."""
 
@@ -149,7 +153,12 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
         f"budgets {', '.join(map(str, config.budgets))} training episodes; each agent tested "
         f"with {agent.eval_episodes} greedy episodes. Encoder: "
         f"{'oracle (true macrostate)' if config.oracle else f'V from `{vae_run}`'}. "
-        f"Epsilon counts t as the {agent.eps_time}. One run per seed, evaluated at every budget.",
+        f"Epsilon counts t as the {agent.eps_time}. "
+        + (
+            "One run per (seed, budget), each from scratch."
+            if config.separate_runs
+            else "One run per seed, evaluated at every budget."
+        ),
         "",
         "## Deviations from the paper's settings",
         "",
@@ -197,7 +206,8 @@ def reproduce(
     atomic_write_text(saved, yaml.safe_dump(mine))
     vae_run = prepare_vision(config, out, log)
     jobs = study_jobs(
-        out, config.tasks, config.seeds, config.budgets, preset=config.preset,
+        out, config.tasks, config.seeds, config.budgets, separate_runs=config.separate_runs,
+        preset=config.preset,
         encoder="oracle" if config.oracle else "vae", vae_run=vae_run,
         overrides=tuple(sorted(config.overrides.items())), plan_budget=max(config.budgets),
         generalize_budget=5000 if 5000 in config.budgets else max(config.budgets),
