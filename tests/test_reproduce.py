@@ -69,7 +69,8 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     assert evaluation_times(out) == before
 
 
-def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path):
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop):
     out = tmp_path / "study"
     args = [IMAGINE, "reproduce", str(out), *SMOKE, "--tasks", "original", "--oracle",
             "--budgets", "30,60", "--workers", "1"]  # fmt: skip
@@ -79,8 +80,12 @@ def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path):
     while len(evaluation_times(out)) < 3 and process.poll() is None:
         assert time.monotonic() < deadline, "the study never got going"
         time.sleep(0.2)
-    os.killpg(process.pid, signal.SIGKILL)
-    process.wait()
+    if stop == signal.SIGKILL:  # the whole study, workers included, dies at once
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    else:  # only the main process is told; it stops its workers cleanly
+        os.kill(process.pid, signal.SIGTERM)
+        assert process.wait(timeout=120) == 128 + signal.SIGTERM
     finished = evaluation_times(out)
     assert 0 < len(finished) < 8, "kill the study mid-way"
     contents = {p: Path(p).read_text() for p in finished}

@@ -393,7 +393,7 @@ def reproduce_study(
             nonlocal finished
             finished += 1
             running.remove(job.name)
-            if error is not None:
+            if error is not None and "Interrupted" not in error:
                 console.print(f"[red]failed[/red] {escape(error)}")
             bar.update(task_id, advance=1, running="running: " + ", ".join(running))
 

@@ -18,10 +18,12 @@ from __future__ import annotations
 import multiprocessing
 import os
 import secrets
+import signal
 import tempfile
 import traceback
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -97,34 +99,44 @@ def study_jobs(
 def run_job(job: Job) -> list[dict[str, Any]]:
     """Train ``job`` through its budgets, evaluating at each; returns the evaluations. Safe to
     call again after a stop: finished budgets are read back, the run resumes where it was."""
+    from imagine.agent import StopSignals
+    from imagine.errors import Interrupted
+
+    torch.set_num_threads(1)  # pools and Ray reuse workers: set it in every job
+    results = []
+    with StopSignals() as stop:  # a signal between trainings stops before the next budget
+        for budget in job.budgets:
+            if stop.signal:
+                raise Interrupted(f"{job.name} stopped before budget {budget}", stop.signal)
+            results.append(_run_budget(job, budget))
+    return results
+
+
+def _run_budget(job: Job, budget: int) -> dict[str, Any]:
+    """Train ``job`` to ``budget`` episodes (resuming) and evaluate it, or read that back."""
     from imagine.agent import train
     from imagine.config import agent_preset
     from imagine.evaluate import greedy_success, model_accuracy
 
-    torch.set_num_threads(1)  # pools and Ray reuse workers: set it in every job
-    results = []
-    for budget in job.budgets:
-        path = job.evaluation_path(budget)
-        if path.is_file():
-            results.append(read_json(path, "evaluation"))
-            continue
-        config = agent_preset(
-            job.preset, task=job.task, method=job.method, seed=job.seed, episodes=budget,
-            encoder=job.encoder, vae_run=job.vae_run, **dict(job.overrides),
-        )  # fmt: skip
-        agent = train(config, job.folder)
-        result = greedy_success(
-            agent.controller, agent.encoder, job.task, config.eval_episodes, EVAL_SEED
-        )
-        accuracy = None
-        if agent.trains_model:
-            accuracy = model_accuracy(agent.model, agent.encoder, job.task)
-        result = {"task": job.task, "method": job.method, "seed": job.seed, "budget": budget,
-                  "time_steps": agent.t, **result, "model_accuracy": accuracy}  # fmt: skip
-        result |= studies_of_m(job, agent, budget)
-        write_json(path, result)
-        results.append(result)
-    return results
+    path = job.evaluation_path(budget)
+    if path.is_file():
+        return read_json(path, "evaluation")
+    config = agent_preset(
+        job.preset, task=job.task, method=job.method, seed=job.seed, episodes=budget,
+        encoder=job.encoder, vae_run=job.vae_run, **dict(job.overrides),
+    )  # fmt: skip
+    agent = train(config, job.folder)
+    result = greedy_success(
+        agent.controller, agent.encoder, job.task, config.eval_episodes, EVAL_SEED
+    )
+    accuracy = None
+    if agent.trains_model:
+        accuracy = model_accuracy(agent.model, agent.encoder, job.task)
+    result = {"task": job.task, "method": job.method, "seed": job.seed, "budget": budget,
+              "time_steps": agent.t, **result, "model_accuracy": accuracy}  # fmt: skip
+    result |= studies_of_m(job, agent, budget)
+    write_json(path, result)
+    return result
 
 
 def studies_of_m(job: Job, agent, budget: int) -> dict[str, Any]:
@@ -176,18 +188,49 @@ class LocalRunner:
     workers: int = 2
 
     def run(self, jobs, on_start, on_done) -> None:
+        """SIGINT or SIGTERM stops the study cleanly: no new job starts, the signal goes on to
+        the running ones (each checkpoints and stops), and :class:`Interrupted` is raised once
+        they have."""
+        from imagine.agent import StopSignals
+        from imagine.errors import ImagineError, Interrupted
+
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(self.workers, mp_context=context) as pool:
+        with StopSignals() as stop, ProcessPoolExecutor(self.workers, mp_context=context) as pool:
             pending = {}
             queue = list(jobs)
+            forwarded = False
             while queue or pending:
-                while queue and len(pending) < self.workers:
+                while queue and len(pending) < self.workers and not stop.signal:
                     job = queue.pop(0)
                     on_start(job)
                     pending[pool.submit(_guarded, job)] = job
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                if stop.signal and not forwarded:
+                    for child in multiprocessing.active_children():
+                        os.kill(child.pid, stop.signal)
+                    forwarded = True
+                if not pending:
+                    break
+                done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                 for future in done:
-                    on_done(pending.pop(future), future.result())
+                    job = pending.pop(future)
+                    try:
+                        error = future.result()
+                    except BrokenProcessPool:
+                        error = f"{job.name}: its worker process died"
+                    on_done(job, error)
+                    if error is not None and "worker process died" in error:
+                        for other in pending.values():
+                            on_done(other, f"{other.name}: its worker process died")
+                        raise ImagineError(
+                            "a worker process died (killed, or out of memory); finished runs "
+                            "are kept: run the same command again to resume"
+                        )
+        if stop.signal:
+            name = signal.Signals(stop.signal).name
+            raise Interrupted(
+                f"{name}: the study stopped; running jobs wrote checkpoints; run the same "
+                "command again to resume", stop.signal,
+            )  # fmt: skip
 
 
 @dataclass

@@ -220,7 +220,7 @@ def reproduce(
     failures: list[str] = []
 
     def done(job: Job, error: str | None) -> None:
-        if error is not None:
+        if error is not None and "Interrupted" not in error:
             failures.append(error)
         if on_done is not None:
             on_done(job, error)
