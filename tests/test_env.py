@@ -7,8 +7,17 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from imagine.env import ENV_ID, GesturePuzzleEnv, rules
+from imagine.env.rules import (
+    MAX_EPISODE_ACTIONS,
+    TASKS,
+    is_terminal,
+    rewards,
+    transition,
+)
 from imagine.errors import ConfigError
 
 
@@ -159,3 +168,32 @@ def test_arrows_and_pointed_cube_are_readable_from_the_observation():
     x = half[:, 22:, :, :].reshape(len(obs), -1)  # the hand part of all three strips
     acc = _linear_probe_accuracy(x, states[:, 3], n_fit=3000)
     assert acc > 0.99, f"pointed cube: {acc:.3f}"
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    actions=st.lists(st.integers(0, 5), min_size=1, max_size=40),
+    task=st.sampled_from(TASKS),
+)
+def test_any_action_sequence_keeps_the_environment_consistent(seed, actions, task):
+    """Episodes restart from legal non-goal states, every reward matches the state entered,
+    an episode ends exactly on goal or illegal states or after 10 actions, and the hand never
+    moves within an episode."""
+    env = GesturePuzzleEnv(task=task)
+    obs, info = env.reset(seed=seed)
+    state, length = tuple(info["macrostate"]), 0
+    for action in actions:
+        assert not is_terminal(np.array(state), task)
+        obs, reward, terminated, truncated, info = env.step(action)
+        nxt = tuple(info["macrostate"])
+        length += 1
+        assert obs.shape == (64, 64, 3) and obs.dtype == np.uint8
+        assert nxt == transition(state, action) and nxt[3] == state[3]
+        assert reward == float(rewards(np.array(nxt), task))
+        assert terminated == bool(is_terminal(np.array(nxt), task))
+        assert truncated == (not terminated and length == MAX_EPISODE_ACTIONS)
+        state = nxt
+        if terminated or truncated:
+            obs, info = env.reset()
+            state, length = tuple(info["macrostate"]), 0
