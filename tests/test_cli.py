@@ -49,6 +49,10 @@ def test_export_fragments_round_trips(tmp_path):
     )
     assert len(list((folder / "cube2" / "left").glob("*.png"))) == 2
     assert len(list((folder / "hand" / "cube1").glob("*.png"))) == 3
+    again = run("env", "export-fragments", str(folder), "--n-cube-fragments", "1",
+                "--n-hand-fragments", "1")  # fmt: skip
+    assert again.returncode == 0  # a smaller export leaves no stale fragments behind
+    assert len(list((folder / "cube2" / "left").glob("*.png"))) == 1
     done = run("env", "show", "--fragments", str(folder), "--out", str(tmp_path / "s.png"))
     assert done.returncode == 0, done.stderr
 

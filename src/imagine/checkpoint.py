@@ -33,6 +33,13 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     return path
 
 
+def fsync_file(path: str | Path) -> None:
+    """Flush a written file to disk, so the rename that follows never exposes an empty file
+    after a power cut."""
+    with open(path, "rb") as f:
+        os.fsync(f.fileno())
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode())
 
@@ -57,6 +64,7 @@ def save_tensors(path: str | Path, tensors: Mapping[str, torch.Tensor]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     save_file({k: v.detach().contiguous().cpu() for k, v in tensors.items()}, str(tmp))
+    fsync_file(tmp)
     os.replace(tmp, path)
     return path
 

@@ -20,6 +20,7 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
+from imagine.checkpoint import fsync_file
 from imagine.env.gesture_puzzle import FragmentSource, make_composer
 from imagine.env.rules import N_MACROSTATES, all_macrostates
 from imagine.env.scene import OBS_SIZE
@@ -89,6 +90,7 @@ def save_dataset(path: str | Path, arrays: dict[str, np.ndarray], config: Datase
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     save_file(arrays, str(tmp), metadata={"imagine_dataset": json.dumps(asdict(config))})
+    fsync_file(tmp)
     os.replace(tmp, path)
     return path
 

@@ -193,10 +193,14 @@ def load_fragment_folder(folder: str | Path) -> FragmentPool:
 
 
 def save_fragment_folder(pool: FragmentPool, folder: str | Path) -> Path:
-    """Write ``pool`` as PNGs in the documented layout: a template for real photographs."""
+    """Write ``pool`` as PNGs in the documented layout: a template for real photographs.
+    Numbered PNGs left in a microstate folder by an earlier, larger export are removed, so the
+    folder holds exactly the pool."""
     root = Path(folder)
     for label, path in _microstate_dirs(root):
         path.mkdir(parents=True, exist_ok=True)
+        for stale in path.glob("[0-9][0-9][0-9].png"):
+            stale.unlink()
         if label.startswith("cube"):
             i, d = int(label[4]), DIRECTION_NAMES.index(label.split("/")[1])
             images = pool.cubes[i, d, : pool.cube_counts[i, d]]
