@@ -50,9 +50,11 @@ def greedy_success(
     success = np.zeros(episodes, dtype=bool)
     returns = np.zeros(episodes)
     controller.eval()
+    actions = np.zeros(episodes, dtype=np.int64)
     while running.any():
-        mu, _ = encoder.encode(obs, states)
-        actions = controller(mu).argmax(-1).numpy()
+        live = np.flatnonzero(running)  # only episodes still running need V and C
+        mu, _ = encoder.encode(obs[live], states[live])
+        actions[live] = controller(mu).argmax(-1).numpy()
         obs, reward, terminated, truncated, info = envs.step(actions)
         returns += np.where(running, reward, 0.0)
         success |= running & (reward == REWARD_GOAL)
