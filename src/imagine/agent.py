@@ -20,7 +20,6 @@ import dataclasses
 import json
 import math
 import signal
-import threading
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
@@ -50,6 +49,7 @@ from imagine.evaluate import model_accuracy
 from imagine.imagination import imagine_rollouts
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.metrics import MetricsLogger
+from imagine.stopping import StopSignals
 from imagine.world_model import WorldModel
 
 FORMAT = "imagine-agent-2"
@@ -297,28 +297,6 @@ def train(
                 )  # fmt: skip
     logger.close()
     return agent
-
-
-class StopSignals:
-    """While active, SIGINT and SIGTERM only set ``signal`` (the training loop checkpoints and
-    stops at the end of the episode); outside the main thread it does nothing."""
-
-    def __init__(self) -> None:
-        self.signal = 0
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> StopSignals:
-        if threading.current_thread() is threading.main_thread():
-            for number in (signal.SIGINT, signal.SIGTERM):
-                self._previous[number] = signal.signal(number, self._handle)
-        return self
-
-    def _handle(self, number: int, frame: Any) -> None:
-        self.signal = number
-
-    def __exit__(self, *exc: object) -> None:
-        for number, handler in self._previous.items():
-            signal.signal(number, handler)
 
 
 def load_agent(folder: str | Path) -> Agent:

@@ -99,8 +99,8 @@ def study_jobs(
 def run_job(job: Job) -> list[dict[str, Any]]:
     """Train ``job`` through its budgets, evaluating at each; returns the evaluations. Safe to
     call again after a stop: finished budgets are read back, the run resumes where it was."""
-    from imagine.agent import StopSignals
     from imagine.errors import Interrupted
+    from imagine.stopping import StopSignals
 
     torch.set_num_threads(1)  # pools and Ray reuse workers: set it in every job
     results = []
@@ -191,8 +191,8 @@ class LocalRunner:
         """SIGINT or SIGTERM stops the study cleanly: no new job starts, the signal goes on to
         the running ones (each checkpoints and stops), and :class:`Interrupted` is raised once
         they have."""
-        from imagine.agent import StopSignals
         from imagine.errors import ImagineError, Interrupted
+        from imagine.stopping import StopSignals
 
         context = multiprocessing.get_context("spawn")
         with StopSignals() as stop, ProcessPoolExecutor(self.workers, mp_context=context) as pool:
