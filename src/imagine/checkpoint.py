@@ -40,6 +40,16 @@ def fsync_file(path: str | Path) -> None:
         os.fsync(f.fileno())
 
 
+def save_figure(fig: Any, out: str | Path, dpi: int = 90) -> Path:
+    """A matplotlib figure as PNG, atomically: a temporary file, then a rename."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    fig.savefig(tmp, dpi=dpi, format="png")
+    os.replace(tmp, out)
+    return out
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode())
 

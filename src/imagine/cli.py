@@ -45,6 +45,10 @@ FragmentSeedOption = Annotated[int, typer.Option(min=0, help="Seed of the proced
 CubeFragmentsOption = Annotated[
     int, typer.Option(help="Procedural fragments per (cube, direction) microstate.")
 ]
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", help="KEY=VALUE: an agent config field over the preset (YAML value)."),
+]
 HandFragmentsOption = Annotated[int, typer.Option(help="Procedural fragments per pointed cube.")]
 
 
@@ -222,10 +226,7 @@ def train_agent(
         Path | None,
         typer.Option("--config", help="YAML mapping of agent config fields over the preset."),
     ] = None,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="KEY=VALUE over the preset and --config (YAML value)."),
-    ] = None,
+    set_: SetOption = None,
 ) -> None:
     """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
     TensorBoard) and checkpoints. Run it again to resume."""
@@ -355,10 +356,7 @@ def reproduce_study(
     separate_runs: Annotated[
         bool, typer.Option(help="One run per budget from scratch (default: one run per seed).")
     ] = False,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="KEY=VALUE agent config over the preset (YAML value)."),
-    ] = None,
+    set_: SetOption = None,
 ) -> None:
     """The paper's section V in one command: V, every (task, method, seed) agent evaluated at
     every budget, Tables I and II, figures and REPORT.md in OUT. Run again to resume."""
@@ -383,15 +381,12 @@ def reproduce_study(
     with Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[running]}"), console=console) as bar:  # fmt: skip
         task_id = bar.add_task("runs", total=total, running="")
-        finished = 0
 
         def on_start(job) -> None:
             running.append(job.name)
             bar.update(task_id, running="running: " + ", ".join(running))
 
         def on_done(job, error) -> None:
-            nonlocal finished
-            finished += 1
             running.remove(job.name)
             if error is not None and "Interrupted" not in error:
                 console.print(f"[red]failed[/red] {escape(error)}")

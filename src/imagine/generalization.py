@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from imagine.checkpoint import save_figure
 from imagine.env.rules import N_ACTIONS, all_macrostates, apply_actions, is_terminal
 
 
@@ -91,7 +92,4 @@ def generalization_png(agent, out: Path, seed: int = 0) -> Path | None:
         ax.axis("off")
     verdict = "right" if (read == truth).all() else "wrong"
     fig.suptitle(f"M from a state it never trained on: prediction {verdict}", fontsize=9)
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=90, format="png")
-    tmp.replace(out)
-    return out
+    return save_figure(fig, out)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from imagine.checkpoint import save_figure
 from imagine.env.rules import (
     apply_actions,
     is_goal,
@@ -156,7 +157,4 @@ def rollout_png(agent, out: Path, length: int = 5, seed: int = 0, tries: int = 5
     verdict = "optimal" if result.optimal else ("succeeded" if result.success else "failed")
     fig.suptitle(f"plan of {len(actions)} actions from one observation ({verdict}; "
                  f"optimal {result.optimal_length})", fontsize=9)  # fmt: skip
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=90, format="png")
-    tmp.replace(out)
-    return out
+    return save_figure(fig, out)

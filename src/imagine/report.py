@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from imagine.checkpoint import atomic_write_text
+from imagine.checkpoint import atomic_write_text, save_figure
 
 METHODS = ("baseline", "augmented")
 
@@ -163,14 +163,6 @@ def claims(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def _save(fig, out: Path) -> Path:
-    """PNG written atomically: a temporary file, then a rename."""
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=90, format="png")
-    tmp.replace(out)
-    return out
-
-
 def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
     """Success % against training episodes, mean and std over seeds, per task (paper Fig. 4
     left), with the paper's numbers dashed."""
@@ -197,7 +189,7 @@ def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
                ylim=(0, 100))  # fmt: skip
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def increase_figure(rows: list[dict[str, Any]], out: Path) -> Path:
@@ -223,7 +215,7 @@ def increase_figure(rows: list[dict[str, Any]], out: Path) -> Path:
     ax.set(xlabel="training episodes", ylabel="% increase of augmented over baseline")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def accuracy_figure(run_folders: list[Path], out: Path) -> Path | None:
@@ -258,7 +250,7 @@ def accuracy_figure(run_folders: list[Path], out: Path) -> Path | None:
                ylabel="% right", ylim=(0, 100))  # fmt: skip
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def m_studies(evaluations: list[dict[str, Any]]) -> list[str]:

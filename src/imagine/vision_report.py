@@ -16,18 +16,11 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from imagine.checkpoint import write_json
+from imagine.checkpoint import save_figure, write_json
 from imagine.config import VisionConfig
 from imagine.dataset import DatasetConfig, synthesize
 from imagine.latent_classifier import LatentClassifier
 from imagine.vision import ConvVAE, encode_images, to_input
-
-
-def _save(fig: Figure, out: Path) -> None:
-    """PNG written atomically: a temporary file, then a rename."""
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=80, format="png")
-    tmp.replace(out)
 
 
 def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
@@ -54,7 +47,7 @@ def reconstructions_png(vae: ConvVAE, images: np.ndarray, out: Path, n: int = 8)
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title)
-    _save(fig, out)
+    save_figure(fig, out, dpi=80)
     return out
 
 
@@ -80,7 +73,7 @@ def traversals_png(vae: ConvVAE, image: np.ndarray, out: Path, steps: int = 7) -
             if dim == 0:
                 axes[dim, k].set_title(f"{float(values[k]):+.1f}")
     fig.suptitle("latent traversals: each row sweeps one dimension of z around a test image")
-    _save(fig, out)
+    save_figure(fig, out, dpi=80)
     return out
 
 

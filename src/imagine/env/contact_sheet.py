@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from imagine.checkpoint import save_figure
 from imagine.env import rules
 from imagine.env.scene import SceneComposer
 
@@ -84,12 +85,7 @@ def contact_sheet(
     fig.suptitle(
         f"GesturePuzzle, task '{task}', seed {seed}: robot at the top, human at the bottom"
     )
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=80, format="png")
-    tmp.replace(out)
-    return out
+    return save_figure(fig, out, dpi=80)
 
 
 def _tile(images: np.ndarray, columns: int, gap: int = 4) -> np.ndarray:
