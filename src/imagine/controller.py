@@ -5,17 +5,24 @@ error (equation 2) toward ``y = r + gamma * (1 - d) * max_a' Q(s', a')`` (equati
 The paper uses no target network; a target network (copied every ``target_update_period``
 updates) and double DQN are options. Exploration is epsilon-greedy with
 ``epsilon = eps_min + (eps_max - eps_min) * exp(-lambda * t)``.
+
+:class:`Controller` is one agent's C (what a checkpoint holds and what evaluation and planning
+use); :class:`PopulationController` is the C of P agents trained together (weights with a
+leading agent axis, :mod:`imagine.stacked`), with each agent's own exploration draws, Adam state
+and target network.
 """
 
 from __future__ import annotations
 
-import copy
 import itertools
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+from imagine.stacked import PopulationAdam, StackedMLP
 
 
 def epsilon(
@@ -23,11 +30,6 @@ def epsilon(
 ) -> float:
     """The paper's exploration rate at time ``t`` (what t counts is a config choice)."""
     return eps_min + (eps_max - eps_min) * math.exp(-decay * t)
-
-
-def adam(params, lr: float) -> torch.optim.Adam:
-    """Adam with the fused kernel (one kernel for all parameters; same update rule)."""
-    return torch.optim.Adam(params, lr=lr, fused=True)
 
 
 def mlp(sizes: list[int], dropout: float = 0.0) -> nn.Sequential:
@@ -46,36 +48,58 @@ class Controller(nn.Module):
     """C: Q-values of every action for a latent state."""
 
     def __init__(
+        self, latent_dim: int, n_actions: int = 6, hidden: tuple[int, ...] = (512, 256, 128)
+    ) -> None:
+        super().__init__()
+        self.n_actions = n_actions
+        self.q = mlp([latent_dim, *hidden, n_actions])
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.q(z)
+
+
+class PopulationController(nn.Module):
+    """The C of P agents, each starting from its own :class:`Controller`."""
+
+    def __init__(
         self,
-        latent_dim: int,
-        n_actions: int = 6,
-        hidden: tuple[int, ...] = (512, 256, 128),
+        controllers: Sequence[Controller],
         lr: float = 1e-3,
         gamma: float = 0.99,
         target_update_period: int = 0,
         double_dqn: bool = False,
     ) -> None:
         super().__init__()
-        self.n_actions = n_actions
+        self.n_actions = controllers[0].n_actions
         self.gamma = gamma
-        self.q = mlp([latent_dim, *hidden, n_actions])
-        self.optimizer = adam(self.q.parameters(), lr)
+        self.q = StackedMLP([c.q for c in controllers])
         self.target_update_period = target_update_period
         self.double_dqn = double_dqn
-        self.target = copy.deepcopy(self.q).requires_grad_(False) if target_update_period else None
-        self.updates = 0
-
-    def forward(self, z: torch.Tensor) -> torch.Tensor:
-        return self.q(z)
+        self.target = None
+        if target_update_period:
+            self.target = StackedMLP([c.q for c in controllers]).requires_grad_(False)
+        self.optimizer = PopulationAdam(self.q.parameters(), len(controllers), lr)
+        self.updates = torch.zeros(len(controllers), dtype=torch.int64)
+        """C updates each agent has taken (real and imaginary)."""
 
     @torch.no_grad()
-    def act(self, z: torch.Tensor, eps: float, generator: torch.Generator) -> torch.Tensor:
-        """Epsilon-greedy actions for a batch of latents (N, latent_dim): int64 (N,)."""
-        greedy = self.q(z).argmax(-1)
-        n = len(z)
-        explore = torch.rand(n, generator=generator, device=z.device) < eps
-        random = torch.randint(self.n_actions, (n,), generator=generator, device=z.device)
-        return torch.where(explore, random, greedy)
+    def act(
+        self,
+        z: torch.Tensor,
+        eps: Sequence[float],
+        generators: Sequence[torch.Generator | None],
+    ) -> torch.Tensor:
+        """Epsilon-greedy actions for latents (P, N, latent_dim): int64 (P, N). Agent i draws
+        from ``generators[i]`` (none if it is None: it gets its greedy actions)."""
+        actions = self.q(z).argmax(-1)
+        n = z.shape[1]
+        for i, generator in enumerate(generators):
+            if generator is None:
+                continue
+            explore = torch.rand(n, generator=generator, device=z.device) < eps[i]
+            random = torch.randint(self.n_actions, (n,), generator=generator, device=z.device)
+            actions[i] = torch.where(explore, random, actions[i])
+        return actions
 
     @torch.no_grad()
     def td_target(
@@ -92,16 +116,21 @@ class Controller(nn.Module):
 
     def update(
         self, z: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
-        next_z: torch.Tensor, done: torch.Tensor,
-    ) -> float:  # fmt: skip
-        """One Adam step on the mean squared TD error (equation 2); returns the loss."""
+        next_z: torch.Tensor, done: torch.Tensor, agents: Sequence[int],
+    ) -> torch.Tensor:  # fmt: skip
+        """One Adam step of each agent in ``agents`` on its mean squared TD error (equation 2)
+        over its batch (P, B, ...); returns every agent's loss (P,)."""
         y = self.td_target(reward, next_z, done)
         q = self.q(z).gather(-1, action.unsqueeze(-1)).squeeze(-1)
-        loss = F.mse_loss(q, y)
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimizer.step()
-        self.updates += 1
-        if self.target is not None and self.updates % self.target_update_period == 0:
-            self.target.load_state_dict(self.q.state_dict())
-        return float(loss.detach())
+        loss = (q - y).square().mean(-1)
+        self.optimizer.zero_grad()
+        loss[list(agents)].sum().backward()  # each agent's gradient is its own loss's
+        self.optimizer.step(agents)
+        chosen = torch.as_tensor(list(agents), dtype=torch.int64)
+        self.updates[chosen] += 1
+        if self.target is not None:
+            due = chosen[self.updates[chosen] % self.target_update_period == 0]
+            with torch.no_grad():
+                for t, q_param in zip(self.target.parameters(), self.q.parameters(), strict=True):
+                    t[due] = q_param[due]
+        return loss.detach()

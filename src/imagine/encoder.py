@@ -54,24 +54,30 @@ class OracleEncoder:
 class VaeEncoder:
     """V's posterior; macrostates are read back with the run's latent classifier."""
 
-    def __init__(self, run: str | Path, composer: SceneComposer, images_per_state: int = 8):
+    def __init__(
+        self,
+        run: str | Path,
+        composer: SceneComposer,
+        images_per_state: int = 8,
+        device: str | torch.device = "cpu",
+    ):
         from imagine.vision_training import load_classifier, load_vae
 
         self.vae, config, _ = load_vae(run)
-        self.vae.eval()
+        self.vae.eval().to(device)
         self.latent_dim = config.latent_dim
         self.classifier = load_classifier(run, config.latent_dim)
         rng = np.random.default_rng(0)
         states = np.repeat(all_macrostates(), images_per_state, axis=0)
         mu, _ = encode_images(self.vae, composer.sample(rng, states))
-        self._state_latents = mu.view(192, images_per_state, -1).mean(1)
+        self._state_latents = mu.view(192, images_per_state, -1).mean(1).cpu()
 
     @torch.no_grad()
     def encode(self, images: np.ndarray, states: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         return encode_images(self.vae, images)
 
     def classify(self, z: torch.Tensor) -> torch.Tensor:
-        return self.classifier.predict(z)
+        return self.classifier.predict(z.cpu())
 
     def state_latents(self) -> torch.Tensor:
         return self._state_latents.clone()

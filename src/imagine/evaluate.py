@@ -54,7 +54,8 @@ def greedy_success(
     while running.any():
         live = np.flatnonzero(running)  # only episodes still running need V and C
         mu, _ = encoder.encode(obs[live], states[live])
-        actions[live] = controller(mu).argmax(-1).numpy()
+        device = next(controller.parameters()).device
+        actions[live] = controller(mu.to(device)).argmax(-1).cpu().numpy()
         obs, reward, terminated, truncated, info = envs.step(actions)
         returns += np.where(running, reward, 0.0)
         success |= running & (reward == REWARD_GOAL)

@@ -4,48 +4,66 @@ lines 17-18).
 ``I_B`` rollouts start from the current real latent state (each a sample of V's N(mu, sigma)),
 act with C epsilon-greedily, draw the next state from the MDN and feed it back, take the reward
 from the r-network and end a rollout where the d-network says terminal, after at most ``I_D``
-steps. M runs in evaluation mode (no dropout) while it imagines.
+steps. M imagines without dropout.
+
+Every agent of a population imagines at once; an agent draws from its own generator, and only
+while one of its rollouts is still going, so its rollouts are those it would imagine alone.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 
-from imagine.controller import Controller
-from imagine.world_model import WorldModel
+from imagine.controller import PopulationController
+from imagine.world_model import PopulationWorldModel
+
+FIELDS = ("z", "action", "next_z", "reward", "done")
 
 
 @torch.no_grad()
 def imagine_rollouts(
-    model: WorldModel,
-    controller: Controller,
+    model: PopulationWorldModel,
+    controller: PopulationController,
     mu: torch.Tensor,
     sigma: torch.Tensor,
     breadth: int,
     depth: int,
-    eps: float,
-    generator: torch.Generator,
-) -> dict[str, torch.Tensor]:
-    """Transitions ``(z, action, next_z, reward, done)`` of ``breadth`` rollouts of up to
-    ``depth`` steps from the latent posterior ``N(mu, sigma)`` (each (latent_dim,))."""
-    was_training = model.training
-    model.eval()
-    noise = torch.randn((breadth, mu.shape[-1]), generator=generator, device=mu.device)
-    z = mu + sigma * noise
-    alive = torch.ones(breadth, dtype=torch.bool, device=mu.device)
-    out: dict[str, list[torch.Tensor]] = {
-        k: [] for k in ("z", "action", "next_z", "reward", "done")
-    }
+    eps: Sequence[float],
+    generators: Sequence[torch.Generator | None],
+) -> list[dict[str, torch.Tensor] | None]:
+    """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done)``
+    of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
+    ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), in the order they were imagined;
+    None for agents without one."""
+    P, D = mu.shape
+    noise = torch.zeros((P, breadth, D), device=mu.device)
+    for i, generator in enumerate(generators):
+        if generator is not None:
+            noise[i] = torch.randn((breadth, D), generator=generator, device=mu.device)
+    z = mu.unsqueeze(1) + sigma.unsqueeze(1) * noise
+    going = torch.tensor([g is not None for g in generators], device=mu.device)
+    alive = going.unsqueeze(1).expand(P, breadth).clone()
+    steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
+    kept: list[torch.Tensor] = []  # which rollouts were alive at each step
     for _ in range(depth):
-        action = controller.act(z, eps, generator)
-        next_z = model.mdn.sample(z, action, generator)
-        reward = model.reward(next_z)
-        done = model.terminal.is_terminal(next_z)
-        for key, value in zip(out, (z, action, next_z, reward, done.float()), strict=True):
-            out[key].append(value[alive])
+        drawing = [g if bool(going[i]) else None for i, g in enumerate(generators)]
+        action = controller.act(z, eps, drawing)
+        next_z = model.sample(z, action, drawing)
+        done = model.is_terminal(next_z)
+        steps.append((z, action, next_z, model.predict_reward(next_z), done.float()))
+        kept.append(alive.clone())
         alive &= ~done
-        if not alive.any():
+        going &= alive.any(-1)
+        if not going.any():
             break
         z = next_z
-    model.train(was_training)
-    return {key: torch.cat(values) for key, values in out.items()}
+    mask = torch.stack(kept)  # (T, P, breadth)
+    stacked = [torch.stack(values) for values in zip(*steps, strict=True)]
+    return [
+        None
+        if generator is None
+        else {key: value[:, i][mask[:, i]] for key, value in zip(FIELDS, stacked, strict=True)}
+        for i, generator in enumerate(generators)
+    ]

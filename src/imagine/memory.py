@@ -2,8 +2,10 @@
 
 Both are ring buffers of preallocated tensors: adding past capacity overwrites the oldest
 transition, which makes M_I the paper's first-in-first-out store of recent model output
-(3,000 transitions) and M_R a 50,000-transition replay memory. Sampling draws index tensors from
-an explicit ``torch.Generator``; no Python loop touches single transitions.
+(3,000 transitions) and M_R a 50,000-transition replay memory. A memory holds one ring per agent
+of a population (a leading agent axis; one agent when training alone), each with its own fill
+level. Sampling draws each agent's indices from that agent's ``torch.Generator`` and gathers
+every agent's batch at once; no Python loop touches single transitions.
 
 What each stores follows Algorithm 1: a real transition is
 ``(mu_t, sigma_t, a_t, mu_{t+1}, sigma_{t+1}, r_t, d_{t+1})`` (V's posterior, so latents can be
@@ -12,6 +14,8 @@ in M's sampled latents.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import torch
 
@@ -37,74 +41,112 @@ def imaginary_fields(latent_dim: int) -> dict[str, tuple[tuple[int, ...], torch.
 
 
 class ReplayMemory:
-    """A fixed-capacity ring buffer of named tensor fields."""
+    """Fixed-capacity ring buffers of named tensor fields, one per agent."""
 
     def __init__(
         self,
         capacity: int,
         fields: dict[str, tuple[tuple[int, ...], torch.dtype]],
+        agents: int = 1,
         device: torch.device | str = "cpu",
     ) -> None:
         if capacity < 1:
             raise ValueError(f"memory capacity must be positive, got {capacity}")
         self.capacity = capacity
+        self.agents = agents
         self.data = {
-            name: torch.zeros((capacity, *shape), dtype=dtype, device=device)
+            name: torch.zeros((agents, capacity, *shape), dtype=dtype, device=device)
             for name, (shape, dtype) in fields.items()
         }
-        self.position = 0  # where the next transition goes
-        self.size = 0
-        self.added = 0  # transitions ever added
+        self.position = [0] * agents  # where each agent's next transition goes
+        self.size = [0] * agents
+        self.added = [0] * agents  # transitions ever added
 
     def __len__(self) -> int:
-        return self.size
+        """Transitions held by agent 0 (the only one when training alone)."""
+        return self.size[0]
 
-    def add(self, **batch: torch.Tensor) -> None:
-        """Append a batch of transitions (each field with a leading batch axis)."""
+    def _check(self, batch: dict[str, torch.Tensor]) -> None:
         if set(batch) != set(self.data):
             raise ValueError(f"expected fields {sorted(self.data)}, got {sorted(batch)}")
+
+    def add(self, agent: int = 0, **batch: torch.Tensor) -> None:
+        """Append a batch of transitions to one agent's ring (each field with a leading batch
+        axis)."""
+        self._check(batch)
         n = len(next(iter(batch.values())))
         if n == 0:
             return
-        index = (self.position + torch.arange(n)) % self.capacity
+        index = (self.position[agent] + torch.arange(n)) % self.capacity
         if n > self.capacity:  # only the newest `capacity` survive
             index, keep = index[-self.capacity :], slice(n - self.capacity, n)
         else:
             keep = slice(0, n)
         for name, value in batch.items():
-            self.data[name][index] = torch.as_tensor(value)[keep].to(self.data[name])
-        self.position = (self.position + n) % self.capacity
-        self.size = min(self.size + n, self.capacity)
-        self.added += n
+            target = self.data[name][agent]
+            target[index.to(target.device)] = torch.as_tensor(value)[keep].to(target)
+        self._advance(agent, n)
 
-    def sample(self, batch_size: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
-        """``batch_size`` transitions drawn uniformly with replacement."""
-        if self.size == 0:
-            raise ValueError("cannot sample from an empty memory")
-        index = torch.randint(self.size, (batch_size,), generator=generator)
-        index = index.to(next(iter(self.data.values())).device)
-        return {name: value[index] for name, value in self.data.items()}
+    def add_each(self, agents: Sequence[int], **batch: torch.Tensor) -> None:
+        """Append one transition to each agent in ``agents`` (fields (len(agents), ...))."""
+        self._check(batch)
+        if not agents:
+            return
+        device = next(iter(self.data.values())).device
+        rows = torch.as_tensor(list(agents), device=device)
+        slots = torch.as_tensor([self.position[a] for a in agents], device=device)
+        for name, value in batch.items():
+            self.data[name][rows, slots] = torch.as_tensor(value).to(self.data[name])
+        for a in agents:
+            self._advance(a, 1)
 
-    def newest(self, n: int) -> dict[str, torch.Tensor]:
-        """The ``n`` most recent transitions, oldest first."""
-        n = min(n, self.size)
-        index = (self.position - n + torch.arange(n)) % self.capacity
-        return {name: value[index] for name, value in self.data.items()}
+    def _advance(self, agent: int, n: int) -> None:
+        self.position[agent] = (self.position[agent] + n) % self.capacity
+        self.size[agent] = min(self.size[agent] + n, self.capacity)
+        self.added[agent] += n
 
-    def state_dict(self, prefix: str) -> dict[str, torch.Tensor]:
-        tensors = {f"{prefix}.{k}": v[: self.size] if self.size < self.capacity else v
-                   for k, v in self.data.items()}  # fmt: skip
-        tensors[f"{prefix}._counters"] = torch.tensor([self.position, self.size, self.added])
+    def sample(
+        self, batch_size: int, generators: Sequence[torch.Generator | None]
+    ) -> dict[str, torch.Tensor]:
+        """``batch_size`` transitions per agent (fields (agents, batch_size, ...)), drawn
+        uniformly with replacement from agent i's ring with ``generators[i]``; an agent whose
+        generator is None draws nothing and gets its first slot repeated."""
+        device = next(iter(self.data.values())).device
+        index = torch.zeros((self.agents, batch_size), dtype=torch.int64)
+        for i, generator in enumerate(generators):
+            if generator is None:
+                continue
+            if self.size[i] == 0:
+                raise ValueError("cannot sample from an empty memory")
+            index[i] = torch.randint(self.size[i], (batch_size,), generator=generator)
+        index = index.to(device)
+        rows = torch.arange(self.agents, device=device).unsqueeze(1)
+        return {name: value[rows, index] for name, value in self.data.items()}
+
+    def newest(self, n: int, agent: int = 0) -> dict[str, torch.Tensor]:
+        """Agent ``agent``'s ``n`` most recent transitions, oldest first."""
+        n = min(n, self.size[agent])
+        index = (self.position[agent] - n + torch.arange(n)) % self.capacity
+        return {name: value[agent][index.to(value.device)] for name, value in self.data.items()}
+
+    def state_dict(self, prefix: str, agent: int = 0) -> dict[str, torch.Tensor]:
+        """One agent's ring, as a single agent's memory checkpoint."""
+        size = self.size[agent]
+        tensors = {f"{prefix}.{k}": v[agent, :size].cpu() for k, v in self.data.items()}
+        counters = [self.position[agent], size, self.added[agent]]
+        tensors[f"{prefix}._counters"] = torch.tensor(counters)
         return tensors
 
-    def load_state_dict(self, tensors: dict[str, torch.Tensor], prefix: str) -> None:
+    def load_state_dict(
+        self, tensors: dict[str, torch.Tensor], prefix: str, agent: int = 0
+    ) -> None:
         try:
             position, size, added = (int(x) for x in tensors[f"{prefix}._counters"])
             for name, value in self.data.items():
                 stored = tensors[f"{prefix}.{name}"]
-                if stored.shape[1:] != value.shape[1:] or len(stored) != size:
+                if stored.shape[1:] != value.shape[2:] or len(stored) != size or size > self.capacity:
                     raise CheckpointError(f"memory {prefix}.{name} has shape {tuple(stored.shape)}")
-                value[:size] = stored.to(value)
+                value[agent, :size] = stored.to(value)
         except KeyError as exc:
             raise CheckpointError(f"checkpoint lacks memory field {exc}") from None
-        self.position, self.size, self.added = position, size, added
+        self.position[agent], self.size[agent], self.added[agent] = position, size, added

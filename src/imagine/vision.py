@@ -119,7 +119,8 @@ def encode_images(
     vae.eval()
     mus, sigmas = [], []
     for start in range(0, len(images), batch_size):
-        mu, sigma = vae.encode(to_input(images[start : start + batch_size]))
+        device = next(vae.parameters()).device
+        mu, sigma = vae.encode(to_input(images[start : start + batch_size]).to(device))
         mus.append(mu)
         sigmas.append(sigma)
     vae.train(was_training)

@@ -12,33 +12,60 @@ Three networks learned online from the real memory:
 
 The MDN's loss is the negative log-likelihood of equation (6),
 -log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp.
+
+:class:`WorldModel` is one agent's M (what a checkpoint holds, what planning and the accuracy
+measurements use); :class:`PopulationWorldModel` is the M of P agents trained together (weights
+with a leading agent axis, :mod:`imagine.stacked`), each with its own dropout masks, latent
+re-sampling noise and Adam state.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from imagine.controller import adam, mlp
+from imagine.controller import mlp
+from imagine.stacked import PopulationAdam, StackedLinear, StackedMLP
 
 LOG_2PI = math.log(2 * math.pi)
 
 
 class Mixture(NamedTuple):
     log_pi: torch.Tensor
-    """(N, K) log mixture weights."""
+    """(..., K) log mixture weights."""
     mu: torch.Tensor
-    """(N, K, D) component means."""
+    """(..., K, D) component means."""
     sigma: torch.Tensor
-    """(N, K, D) component scales (standard deviations)."""
+    """(..., K, D) component scales (standard deviations)."""
+
+
+def mixture_from_heads(
+    pi: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, latent_dim: int, min_sigma: float
+) -> Mixture:
+    """The mixture from the three heads' outputs (..., K), (..., K*D), (..., K*D)."""
+    shape = (*pi.shape, latent_dim)
+    return Mixture(
+        F.log_softmax(pi, -1), mu.view(shape), F.softplus(sigma).view(shape) + min_sigma
+    )
+
+
+def sample_mixture(m: Mixture, generator: torch.Generator) -> torch.Tensor:
+    """One draw per row of mixtures (N, ...): a component from the weights, then from its
+    Gaussian."""
+    k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
+    index = k.unsqueeze(-1).expand(-1, 1, m.mu.shape[-1])
+    mu, sigma = m.mu.gather(1, index).squeeze(1), m.sigma.gather(1, index).squeeze(1)
+    eps = torch.randn(mu.shape, generator=generator, device=mu.device)
+    return mu + sigma * eps
 
 
 def mixture_nll(mixture: Mixture, target: torch.Tensor) -> torch.Tensor:
-    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2), per sample (N,)."""
+    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 6), per sample."""
     z = (target.unsqueeze(-2) - mixture.mu) / mixture.sigma
     log_normal = -0.5 * (z.square() + LOG_2PI).sum(-1) - mixture.sigma.log().sum(-1)
     return -torch.logsumexp(mixture.log_pi + log_normal, dim=-1)
@@ -71,9 +98,8 @@ class MDN(nn.Module):
     def forward(self, z: torch.Tensor, action: torch.Tensor) -> Mixture:
         """The mixture for latents (N, D) and integer actions (N,)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
-        shape = (*z.shape[:-1], self.n_components, self.latent_dim)
-        sigma = F.softplus(self.sigma_head(h)).view(shape) + self.min_sigma
-        return Mixture(F.log_softmax(self.pi_head(h), -1), self.mu_head(h).view(shape), sigma)
+        return mixture_from_heads(self.pi_head(h), self.mu_head(h), self.sigma_head(h),
+                                  self.latent_dim, self.min_sigma)  # fmt: skip
 
     def loss(self, z: torch.Tensor, action: torch.Tensor, next_z: torch.Tensor) -> torch.Tensor:
         return mixture_nll(self(z, action), next_z).mean()
@@ -83,12 +109,7 @@ class MDN(nn.Module):
         self, z: torch.Tensor, action: torch.Tensor, generator: torch.Generator
     ) -> torch.Tensor:
         """Draw z_{t+1}: a component from the weights, then from its Gaussian."""
-        m = self(z, action)
-        k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
-        index = k.unsqueeze(-1).expand(-1, 1, self.latent_dim)
-        mu, sigma = m.mu.gather(1, index).squeeze(1), m.sigma.gather(1, index).squeeze(1)
-        eps = torch.randn(mu.shape, generator=generator, device=mu.device)
-        return mu + sigma * eps
+        return sample_mixture(self(z, action), generator)
 
     @torch.no_grad()
     def most_likely(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -137,9 +158,7 @@ class TerminalNet(nn.Module):
 
 
 class WorldModel(nn.Module):
-    """M: the MDN with its r- and d-networks. One Adam steps all three: their parameters are
-    disjoint, so the gradient of the summed loss is each network's own gradient, and the update
-    is the same as with three optimizers, in one fused step."""
+    """M: the MDN with its r- and d-networks."""
 
     def __init__(
         self,
@@ -147,33 +166,96 @@ class WorldModel(nn.Module):
         n_actions: int = 6,
         n_components: int = 5,
         dropout: float = 0.5,
-        lr: float = 1e-3,
         reward_hidden: int = 512,
     ) -> None:
         super().__init__()
+        self.dropout = dropout
         self.mdn = MDN(latent_dim, n_actions, n_components, dropout=dropout)
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=dropout)
         self.terminal = TerminalNet(latent_dim, dropout=dropout)
-        self.optimizer = adam(self.parameters(), lr)
+
+
+class PopulationWorldModel(nn.Module):
+    """The M of P agents, each starting from its own :class:`WorldModel`. One Adam steps all
+    three networks of an agent: their parameters are disjoint, so the gradient of the summed
+    loss is each network's own gradient, and the update is the same as with three optimizers."""
+
+    def __init__(self, models: Sequence[WorldModel], lr: float = 1e-3) -> None:
+        super().__init__()
+        first = models[0]
+        self.latent_dim, self.n_actions = first.mdn.latent_dim, first.mdn.n_actions
+        self.min_sigma = first.mdn.min_sigma
+        p = first.dropout
+        # registered in WorldModel's parameter order (export_agent relies on it)
+        self.mdn_body = StackedMLP([m.mdn.body for m in models], p, activate_last=True)
+        self.pi_head = StackedLinear([m.mdn.pi_head for m in models])
+        self.mu_head = StackedLinear([m.mdn.mu_head for m in models])
+        self.sigma_head = StackedLinear([m.mdn.sigma_head for m in models])
+        self.reward = StackedMLP([m.reward.net for m in models], p)
+        self.terminal = StackedMLP([m.terminal.net for m in models], p)
+        self.optimizer = PopulationAdam(self.parameters(), len(models), lr)
+
+    def heads(
+        self, z: torch.Tensor, action: torch.Tensor, generators=None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The MDN heads' outputs for latents (P, N, D) and actions (P, N); dropout with
+        ``generators``."""
+        x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
+        h = self.mdn_body(x, generators)
+        return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
+
+    @torch.no_grad()
+    def sample(
+        self, z: torch.Tensor, action: torch.Tensor, generators: Sequence[torch.Generator | None]
+    ) -> torch.Tensor:
+        """Draw z_{t+1} (P, N, D) for each agent with a generator (zeros for the others).
+        The mixture is formed agent by agent: softplus rounds some elements differently at a
+        tensor's end, so one agent's few rows must be a tensor of their own to give the numbers
+        they give alone."""
+        heads = self.heads(z, action)
+        out = torch.zeros_like(z)
+        for i, generator in enumerate(generators):
+            if generator is not None:
+                m = mixture_from_heads(*(h[i] for h in heads), self.latent_dim, self.min_sigma)
+                out[i] = sample_mixture(m, generator)
+        return out
+
+    @torch.no_grad()
+    def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.reward(z).squeeze(-1)
+
+    @torch.no_grad()
+    def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
+        return self.terminal(z).squeeze(-1) > 0.0
 
     def update(
-        self, batch: dict[str, torch.Tensor], generator: torch.Generator
-    ) -> dict[str, float]:
-        """One update of each network on a batch from the real memory; latents are re-sampled
-        from V's N(mu, sigma) (the paper's data augmentation). Returns the three losses."""
+        self, batch: dict[str, torch.Tensor], generators: Sequence[torch.Generator | None]
+    ) -> dict[str, torch.Tensor]:
+        """One update of each network of every agent whose generator is given, on its batch
+        (P, B, ...) from the real memory; latents are re-sampled from V's N(mu, sigma) (the
+        paper's data augmentation). Returns the three losses per agent (P,)."""
 
         def draw(mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
-            return mu + sigma * torch.randn(mu.shape, generator=generator, device=mu.device)
+            noise = torch.zeros_like(mu)
+            for i, generator in enumerate(generators):
+                if generator is not None:
+                    noise[i] = torch.randn(mu.shape[1:], generator=generator, device=mu.device)
+            return mu + sigma * noise
 
+        agents = [i for i, g in enumerate(generators) if g is not None]
         z, next_z = draw(batch["mu"], batch["sigma"]), draw(batch["next_mu"], batch["next_sigma"])
-        if not self.training:  # a recursive call over every module: skip it when it is a no-op
-            self.train()
+        mixture = mixture_from_heads(*self.heads(z, batch["action"], generators),
+                                     self.latent_dim, self.min_sigma)  # fmt: skip
+        reward = self.reward(next_z, generators).squeeze(-1)
+        terminal = self.terminal(next_z, generators).squeeze(-1)
         losses = {
-            "mdn": self.mdn.loss(z, batch["action"], next_z),
-            "reward": self.reward.loss(next_z, batch["reward"]),
-            "terminal": self.terminal.loss(next_z, batch["done"]),
+            "mdn": mixture_nll(mixture, next_z).mean(-1),
+            "reward": log_cosh(reward - batch["reward"]).mean(-1),
+            "terminal": F.binary_cross_entropy_with_logits(
+                terminal, batch["done"], reduction="none"
+            ).mean(-1),
         }
-        self.optimizer.zero_grad(set_to_none=True)
-        sum(losses.values()).backward()
-        self.optimizer.step()
-        return {name: float(loss.detach()) for name, loss in losses.items()}
+        self.optimizer.zero_grad()
+        sum(loss[agents].sum() for loss in losses.values()).backward()
+        self.optimizer.step(agents)
+        return {name: loss.detach() for name, loss in losses.items()}

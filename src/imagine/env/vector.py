@@ -11,7 +11,8 @@ Autoreset follows Gymnasium's modes: ``NEXT_STEP`` (default, as ``SyncVectorEnv`
 after an episode ends resets that sub-environment and ignores its action, with reward 0) or
 ``SAME_STEP`` (the reset happens in the step that ends the episode; the last observation and
 macrostate go to ``info["final_obs"]`` and ``info["final_macrostate"]``, marked by
-``info["_final_obs"]``). ``info["macrostate"]`` is an int64 (N, 4) array and ``info["actions"]``
+``info["_final_obs"]``) or ``DISABLED`` (no resets but those asked for with
+``reset(options={"reset_mask": ...})``). ``info["macrostate"]`` is an int64 (N, 4) array and ``info["actions"]``
 the actions taken so far in each episode.
 """
 
@@ -64,8 +65,10 @@ class GesturePuzzleVectorEnv(VectorEnv):
             mode = AutoresetMode(autoreset_mode)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
-            raise ConfigError(f"autoreset_mode must be NEXT_STEP or SAME_STEP, got {mode.value}")
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP, AutoresetMode.DISABLED):
+            raise ConfigError(
+                f"autoreset_mode must be NEXT_STEP, SAME_STEP or DISABLED, got {mode.value}"
+            )
         if render_mode is not None and render_mode != "rgb_array":
             raise ConfigError(f"unknown render_mode {render_mode!r}; choose 'rgb_array' or None")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
@@ -173,6 +176,8 @@ class GesturePuzzleVectorEnv(VectorEnv):
             self._draw_starts(np.flatnonzero(done))
             self._actions[done] = 0
             self._observe(np.flatnonzero(done))
+        elif self.autoreset_mode == AutoresetMode.DISABLED:
+            self._observe(np.arange(self.num_envs))
         else:
             self._draw_starts(np.flatnonzero(resetting))
             self._actions[resetting] = 0

@@ -1,0 +1,345 @@
+"""Algorithm 1 for a population: the seeds of one (task, method) trained in lockstep.
+
+Every real time step, each running agent takes one step in its own environment (one vectorized
+environment for all), V encodes every agent's observation in one batch, and each of the updates
+of Algorithm 1 (lines 12-19) is one batched computation over the agents' stacked networks
+(:mod:`imagine.stacked`): N_E updates of M, N_R updates of C on real batches, I_B imagined
+rollouts of depth up to I_D into M_I and N_I updates of C on imaginary batches.
+
+Each agent keeps what makes it an independent run: its environment and episodes, its memories
+M_R and M_I, its epsilon, its Adam state and its own ``torch.Generator`` for every random draw
+(batches, latent re-sampling, dropout masks, exploration, mixture samples). Agent i draws the
+same numbers in the same order whatever the other agents do, so a population of one is training
+alone, and an agent's numbers in a population equal its numbers alone
+(``tests/test_population.py``). Agents run until their own episode budget; one whose loss
+becomes non-finite is stopped and reported while the others go on.
+
+Checkpoints are per agent, one run folder each, in the single-agent format (the state dicts of
+:class:`~imagine.controller.Controller` and :class:`~imagine.world_model.WorldModel`): a run
+trained in a population can be resumed, evaluated or planned with alone, and the other way round.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+
+from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json, save_tensors
+from imagine.checkpoint import write_json
+from imagine.config import AgentConfig
+from imagine.controller import Controller, PopulationController, epsilon
+from imagine.env.rules import REWARD_GOAL
+from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.errors import CheckpointError, ConfigError
+from imagine.imagination import imagine_rollouts
+from imagine.memory import ReplayMemory, imaginary_fields, real_fields
+from imagine.stacked import export_agent, import_agent
+from imagine.world_model import PopulationWorldModel, WorldModel
+
+FORMAT = "imagine-agent-3"
+READABLE_FORMATS = ("imagine-agent-2", FORMAT)
+"""Checkpoint formats whose networks can be loaded for evaluation (only FORMAT resumes)."""
+
+NETWORK_OF = {
+    "losses/mdn": "M's MDN",
+    "losses/reward": "M's r-network",
+    "losses/terminal": "M's d-network",
+    "losses/controller_real": "C's (real batch)",
+    "losses/controller_imaginary": "C's (imaginary batch)",
+}
+
+
+def new_networks(config: AgentConfig, latent_dim: int) -> tuple[Controller, WorldModel]:
+    """One agent's freshly initialized C and M (seeded with its seed)."""
+    torch.manual_seed(config.seed)
+    controller = Controller(latent_dim)
+    model = WorldModel(latent_dim, n_components=config.n_components, dropout=config.dropout,
+                       reward_hidden=config.reward_hidden)  # fmt: skip
+    return controller, model
+
+
+def check_population(configs: Sequence[AgentConfig]) -> None:
+    """A population shares every setting but the seed."""
+    if not configs:
+        raise ConfigError("a population needs at least one agent")
+    shared = dataclasses.replace(configs[0], seed=0)
+    for config in configs[1:]:
+        if dataclasses.replace(config, seed=0) != shared:
+            raise ConfigError("the agents of a population may differ only in their seed")
+
+
+class Population:
+    """C, M, memories, environments and random streams of P runs of Algorithm 1."""
+
+    def __init__(
+        self, configs: Sequence[AgentConfig], encoder, device: str | torch.device = "cpu"
+    ) -> None:
+        check_population(configs)
+        self.configs = list(configs)
+        self.config = c = configs[0]
+        self.encoder = encoder
+        self.device = torch.device(device)
+        self.size = P = len(configs)
+        d = encoder.latent_dim
+        networks = [new_networks(config, d) for config in configs]
+        self.controller = PopulationController(
+            [n[0].to(self.device) for n in networks], lr=c.controller_lr, gamma=c.gamma,
+            target_update_period=c.target_update_period, double_dqn=c.double_dqn,
+        )  # fmt: skip
+        self.model = PopulationWorldModel([n[1].to(self.device) for n in networks], c.model_lr)
+        self.templates = copy.deepcopy(networks[0])  # single-agent modules for export
+        self.real = ReplayMemory(c.real_memory, real_fields(d), P, self.device)
+        self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)
+        self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
+        self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
+        self.envs.reset(seed=[x.seed for x in configs])
+        self.episode = [0] * P  # episodes finished
+        self.t = [0] * P  # real time steps taken
+        self.active = [True] * P
+        self.failures: dict[int, str] = {}
+        self.saved_windows: list[dict[str, list[float]]] = [{} for _ in range(P)]
+        self._starting = [True] * P  # the next step starts a new episode
+        self.mu = torch.zeros(P, d, device=self.device)
+        self.sigma = torch.zeros(P, d, device=self.device)
+        self._episode = [EpisodeTotals() for _ in range(P)]
+        self._loss_sum: dict[str, torch.Tensor] = {}
+        self._loss_count: dict[str, torch.Tensor] = {}
+
+    @property
+    def trains_model(self) -> bool:
+        return self.config.method == "augmented" or self.config.baseline_trains_m
+
+    def epsilon(self, agent: int) -> float:
+        c = self.config
+        t = self.t[agent] if c.eps_time == "step" else self.episode[agent]
+        return epsilon(t, c.eps_min, c.eps_max, c.eps_decay)
+
+    def stop(self, agent: int) -> None:
+        """Take an agent out of the lockstep (budget reached, stopped or failed)."""
+        self.active[agent] = False
+
+    # --- one real time step of every running agent (Algorithm 1, lines 7-19) ------------------
+
+    def step(self) -> list[tuple[int, dict[str, float]]]:
+        """One real time step of every running agent; returns (agent, statistics) of each
+        episode that ended in it."""
+        c = self.config
+        self._start_episodes()
+        live = [i for i in range(self.size) if self.active[i]]
+        if not live:
+            return []
+        rows = torch.as_tensor(live, device=self.device)
+        gens = [g if self.active[i] else None for i, g in enumerate(self.generators)]
+        eps = [self.epsilon(i) for i in range(self.size)]
+        action = self.controller.act(self.mu.unsqueeze(1), eps, gens)[:, 0]
+        obs, reward, terminated, truncated, info = self.envs.step(action.cpu().numpy())
+        next_mu, next_sigma = self._encode(live, obs, info["macrostate"])
+        self.real.add_each(
+            live, mu=self.mu[rows], sigma=self.sigma[rows], action=action[rows],
+            next_mu=next_mu, next_sigma=next_sigma,
+            reward=torch.as_tensor(reward[live], dtype=torch.float32),
+            done=torch.as_tensor(terminated[live], dtype=torch.float32),
+        )  # fmt: skip
+        for _ in range(c.model_updates if self.trains_model else 0):
+            losses = self.model.update(self.real.sample(c.model_batch, gens), gens)
+            for name, loss in losses.items():
+                self._record(f"losses/{name}", loss, rows)
+        for _ in range(c.n_real_updates):
+            b = self.real.sample(c.real_batch, gens)
+            z, next_z = self._controller_states(b, gens)
+            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], live)
+            self._record("losses/controller_real", loss, rows)
+        self._imagine(live, eps)
+        self.mu[rows], self.sigma[rows] = next_mu, next_sigma
+        ended = []
+        for i in live:
+            totals = self._episode[i]
+            totals.add(float(reward[i]), eps[i])
+            self.t[i] += 1
+            if terminated[i] or truncated[i]:
+                self.episode[i] += 1
+                self._starting[i] = True
+                stats = self._end_episode(i)
+                if stats is not None:
+                    ended.append((i, stats))
+        return ended
+
+    def _start_episodes(self) -> None:
+        starting = [i for i in range(self.size) if self.active[i] and self._starting[i]]
+        if not starting:
+            return
+        mask = np.zeros(self.size, dtype=bool)
+        mask[starting] = True
+        obs, info = self.envs.reset(options={"reset_mask": mask})
+        rows = torch.as_tensor(starting, device=self.device)
+        self.mu[rows], self.sigma[rows] = self._encode(starting, obs, info["macrostate"])
+        for i in starting:
+            self._starting[i] = False
+            self._episode[i] = EpisodeTotals()
+
+    def _encode(
+        self, agents: list[int], obs: np.ndarray, states: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        mu, sigma = self.encoder.encode(obs[agents], states[agents])
+        return mu.to(self.device), sigma.to(self.device)
+
+    def _controller_states(
+        self, batch: dict[str, torch.Tensor], gens: list[torch.Generator | None]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The states C learns from for a real batch: V's means, or draws from N(mu, sigma)."""
+        if self.config.controller_input == "mu":
+            return batch["mu"], batch["next_mu"]
+        out = []
+        for m, s in (("mu", "sigma"), ("next_mu", "next_sigma")):
+            noise = torch.zeros_like(batch[m])
+            for i, g in enumerate(gens):
+                if g is not None:
+                    noise[i] = torch.randn(noise.shape[1:], generator=g, device=self.device)
+            out.append(batch[m] + batch[s] * noise)
+        return out[0], out[1]
+
+    def _imagine(self, live: list[int], eps: list[float]) -> None:
+        """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""
+        c = self.config
+        if c.method != "augmented":
+            return
+        imagining = [i for i in live if self.episode[i] >= c.imagination_start]
+        if not imagining:
+            return
+        gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
+        rollouts = imagine_rollouts(self.model, self.controller, self.mu, self.sigma,
+                                    c.imagination_breadth, c.imagination_depth, eps, gens)  # fmt: skip
+        for i in imagining:
+            self.imaginary.add(i, **rollouts[i])
+            self._episode[i].imagined += len(rollouts[i]["z"])
+        rows = torch.as_tensor(imagining, device=self.device)
+        for _ in range(c.n_imaginary_updates):
+            b = self.imaginary.sample(c.imaginary_batch, gens)
+            loss = self.controller.update(
+                b["z"], b["action"], b["reward"], b["next_z"], b["done"], imagining
+            )
+            self._record("losses/controller_imaginary", loss, rows)
+
+    def _record(self, key: str, loss: torch.Tensor, rows: torch.Tensor) -> None:
+        if key not in self._loss_sum:
+            self._loss_sum[key] = torch.zeros(self.size, dtype=torch.float64, device=self.device)
+            self._loss_count[key] = torch.zeros(self.size, dtype=torch.int64, device=self.device)
+        self._loss_sum[key][rows] += loss[rows].double()
+        self._loss_count[key][rows] += 1
+
+    def _end_episode(self, i: int) -> dict[str, float] | None:
+        """The finished episode's statistics and mean losses; None (and the agent stopped,
+        with a failure) if a loss became non-finite."""
+        stats = self._episode[i].stats()
+        for key in self._loss_sum:
+            n = int(self._loss_count[key][i])
+            if n:
+                stats[key] = float(self._loss_sum[key][i]) / n
+            self._loss_sum[key][i] = 0.0
+            self._loss_count[key][i] = 0
+        for key, value in stats.items():
+            if key in NETWORK_OF and not np.isfinite(value):
+                self.failures[i] = (
+                    f"{NETWORK_OF[key]} loss became {value} at real time step {self.t[i]} "
+                    f"(episode {self.episode[i]}); the run keeps its last checkpoint"
+                )
+                self.stop(i)
+                return None
+        return stats
+
+    # --- one agent's networks and checkpoints -------------------------------------------------
+
+    def networks(self, agent: int) -> tuple[Controller, WorldModel]:
+        """Copies of agent ``agent``'s C and M as single-agent modules (on the CPU)."""
+        controller, model = copy.deepcopy(self.templates)
+        export_agent(self.controller.q, agent, controller.q.to(self.device))
+        export_agent(self.model, agent, model.to(self.device))
+        return controller.cpu().eval(), model.cpu().eval()
+
+    def save(self, agent: int, folder: Path, window: dict[str, list[float]] | None = None) -> None:
+        """Checkpoint one agent into its run folder; ``window`` holds the episode statistics
+        not yet averaged into a metrics row, so a run stopped between rows resumes with the
+        same rows."""
+        controller, model = self.networks(agent)
+        tensors = {f"controller.{k}": v for k, v in controller.state_dict().items()}
+        if self.controller.target is not None:
+            target = export_agent(self.controller.target, agent, copy.deepcopy(controller.q))
+            tensors |= {f"controller_target.{k}": v for k, v in target.state_dict().items()}
+        tensors |= self.controller.optimizer.agent_state(agent, "controller_optim")
+        tensors |= {f"model.{k}": v for k, v in model.state_dict().items()}
+        tensors |= self.model.optimizer.agent_state(agent, "model_optim")
+        tensors |= self.real.state_dict("real", agent) | self.imaginary.state_dict(
+            "imaginary", agent
+        )
+        tensors["rng.generator"] = self.generators[agent].get_state()
+        save_tensors(folder / "agent.safetensors", tensors)
+        state = self.envs._rngs[agent].bit_generator.state
+        write_json(folder / "agent.json", {
+            "format": FORMAT, "episode": self.episode[agent], "t": self.t[agent],
+            "controller_updates": int(self.controller.updates[agent]),
+            "env_rng": json.loads(json.dumps(state)),
+            "config": dataclasses.asdict(self.configs[agent]), "window": window or {},
+        })  # fmt: skip
+
+    def load(self, agent: int, folder: Path) -> None:
+        """Resume one agent from its run folder (at the start of its next episode)."""
+        meta = read_json(folder / "agent.json", "agent checkpoint metadata")
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise CheckpointError(
+                f"{folder / 'agent.json'} is not an agent checkpoint of this version"
+            )
+        tensors = load_tensors(folder / "agent.safetensors", "agent checkpoint")
+        where = str(folder / "agent.safetensors")
+        controller, model = copy.deepcopy(self.templates)
+        load_state_dict_strict(controller, part(tensors, "controller"), where)
+        load_state_dict_strict(model, part(tensors, "model"), where)
+        import_agent(self.controller.q, agent, controller.q.to(self.device))
+        import_agent(self.model, agent, model.to(self.device))
+        if self.controller.target is not None:
+            load_state_dict_strict(controller.q, part(tensors, "controller_target"), where)
+            import_agent(self.controller.target, agent, controller.q.to(self.device))
+        self.controller.optimizer.load_agent_state(agent, tensors, "controller_optim")
+        self.model.optimizer.load_agent_state(agent, tensors, "model_optim")
+        self.real.load_state_dict(tensors, "real", agent)
+        self.imaginary.load_state_dict(tensors, "imaginary", agent)
+        self.generators[agent].set_state(tensors["rng.generator"])
+        self.envs._rngs[agent].bit_generator.state = meta["env_rng"]
+        self.episode[agent], self.t[agent] = int(meta["episode"]), int(meta["t"])
+        self.controller.updates[agent] = int(meta["controller_updates"])
+        window = meta.get("window", {})
+        self.saved_windows[agent] = {k: [float(v) for v in vs] for k, vs in window.items()}
+        self._starting[agent] = True
+
+
+def part(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    """The tensors under ``prefix.``, with the prefix taken off."""
+    return {k[len(prefix) + 1 :]: v for k, v in tensors.items() if k.startswith(prefix + ".")}
+
+
+@dataclasses.dataclass
+class EpisodeTotals:
+    """What one agent's running episode has gathered so far."""
+
+    total: float = 0.0
+    length: int = 0
+    success: bool = False
+    imagined: int = 0
+    eps: float = 0.0
+
+    def add(self, reward: float, eps: float) -> None:
+        self.total += reward
+        self.length += 1
+        self.success |= reward == REWARD_GOAL
+        self.eps = eps
+
+    def stats(self) -> dict[str, float]:
+        return {"charts/return": self.total, "charts/success": float(self.success),
+                "charts/episode_length": float(self.length), "charts/epsilon": self.eps,
+                "charts/imagined_transitions": float(self.imagined)}  # fmt: skip

@@ -1,0 +1,181 @@
+"""Networks of a population: P agents' copies of one architecture trained in one process.
+
+Every weight carries a leading agent axis, (P, out, in), and a layer is one batched matrix
+product (``torch.baddbmm``) over the agents, so P small networks cost a few large kernels
+instead of P times as many small ones. Agent ``i``'s slice is computed exactly as it would be
+alone: batched products work on each slice separately, so its numbers do not depend on which
+other agents share the stack (``tests/test_population.py``).
+
+What must stay per agent is kept per agent:
+
+- randomness: dropout masks are drawn from each agent's own ``torch.Generator``;
+- optimizer state: :class:`PopulationAdam` gives each agent's slices their own Adam state and
+  step count, and an agent can sit out an update (its imaginary updates start at its own
+  episode I_start);
+- parameters: :func:`export_agent` and :func:`import_agent` move one agent's slices to and from
+  the single-agent modules (:class:`~imagine.controller.Controller`,
+  :class:`~imagine.world_model.WorldModel`), whose state dicts are what checkpoints hold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def linears(module: nn.Module) -> list[nn.Linear]:
+    """The linear layers of a module, in registration order."""
+    return [m for m in module.modules() if isinstance(m, nn.Linear)]
+
+
+class StackedLinear(nn.Module):
+    """P linear layers of the same shape: x (P, N, in) -> (P, N, out)."""
+
+    def __init__(self, layers: Sequence[nn.Linear]) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]))
+        self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.weight.shape[1] == 1:
+            # one output unit: a product and a sum, because a batched product with a single
+            # output column takes another kernel for one agent than for several, and rounds
+            # differently (an agent's numbers would depend on the population's size)
+            return (x * self.weight).sum(-1, keepdim=True) + self.bias.unsqueeze(1)
+        return torch.baddbmm(self.bias.unsqueeze(1), aligned(x), self.weight.transpose(1, 2))
+
+
+ALIGN = 16
+"""Floats in 64 bytes: where each agent's block of a matrix-product input must start."""
+
+
+def aligned(x: torch.Tensor) -> torch.Tensor:
+    """``x`` (P, N, in) with each agent's block starting on a 64-byte boundary (a copy with
+    padding between agents when N * in is not a multiple of 16). The CPU's matrix-product
+    kernels round differently for differently aligned operands, so without this an agent's
+    few rows (one action, I_B imagined states) would give other numbers at an odd place in
+    the stack than alone."""
+    P, N, width = x.shape
+    block = N * width
+    if P == 1 or (block % ALIGN == 0 and x.is_contiguous()):
+        return x
+    stride = -(-block // ALIGN) * ALIGN
+    buffer = x.new_empty(P, stride)
+    buffer[:, :block] = x.reshape(P, block)
+    return buffer[:, :block].view(P, N, width)
+
+
+def agent_dropout(
+    x: torch.Tensor, p: float, generators: Sequence[torch.Generator | None]
+) -> torch.Tensor:
+    """Inverted dropout with each agent's mask drawn from its own generator; an agent whose
+    generator is None (not updating) draws nothing and keeps every unit."""
+    keep = 1.0 - p
+    mask = torch.ones_like(x)
+    for i, generator in enumerate(generators):
+        if generator is not None:
+            mask[i].bernoulli_(keep, generator=generator)
+    return x * mask / keep
+
+
+class StackedMLP(nn.Module):
+    """P copies of one :func:`~imagine.controller.mlp`: ReLU (then dropout, when generators are
+    given) between layers, and after the last one too with ``activate_last``."""
+
+    def __init__(
+        self, mlps: Sequence[nn.Module], dropout: float = 0.0, activate_last: bool = False
+    ) -> None:
+        super().__init__()
+        per_agent = [linears(m) for m in mlps]
+        self.layers = nn.ModuleList(
+            StackedLinear([agent[i] for agent in per_agent]) for i in range(len(per_agent[0]))
+        )
+        self.dropout = dropout
+        self.activate_last = activate_last
+
+    def forward(
+        self, x: torch.Tensor, generators: Sequence[torch.Generator | None] | None = None
+    ) -> torch.Tensor:
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            x = layer(x)
+            if i < last or self.activate_last:
+                x = F.relu(x)
+                if generators is not None and self.dropout > 0:
+                    x = agent_dropout(x, self.dropout, generators)
+        return x
+
+
+@torch.no_grad()
+def export_agent(stacked: nn.Module, agent: int, module: nn.Module) -> nn.Module:
+    """Copy agent ``agent``'s slices into a single-agent module of the same architecture
+    (parameters registered in the same order); returns the module."""
+    for s, m in zip(stacked.parameters(), module.parameters(), strict=True):
+        m.copy_(s[agent])
+    return module
+
+
+@torch.no_grad()
+def import_agent(stacked: nn.Module, agent: int, module: nn.Module) -> None:
+    """Copy a single-agent module's parameters into agent ``agent``'s slices."""
+    for s, m in zip(stacked.parameters(), module.parameters(), strict=True):
+        s[agent].copy_(m)
+
+
+class PopulationAdam:
+    """Adam (torch's fused kernel) over stacked parameters with per-agent state.
+
+    Each agent's slice of each parameter is a parameter of one ``torch.optim.Adam``, so every
+    agent has its own moments and its own step count (the bias correction), exactly as with an
+    Adam of its own. :meth:`step` takes the agents that update; the others' slices, moments and
+    step counts stay as they are.
+    """
+
+    def __init__(self, params: Iterable[nn.Parameter], agents: int, lr: float) -> None:
+        self.params = list(params)
+        self.lr = lr
+        # detach(): the slices are leaves sharing the parameters' storage
+        self.slices = [[p.detach()[i] for p in self.params] for i in range(agents)]
+        self.optimizer = torch.optim.Adam(
+            [s for agent in self.slices for s in agent], lr=lr, fused=True
+        )
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    def step(self, agents: Sequence[int]) -> None:
+        """One Adam step for ``agents`` from the gradients of the stacked parameters."""
+        chosen = set(agents)
+        for i, agent in enumerate(self.slices):
+            for p, s in zip(self.params, agent, strict=True):
+                s.grad = p.grad[i] if i in chosen and p.grad is not None else None
+        self.optimizer.step()
+
+    def agent_state(self, agent: int, prefix: str) -> dict[str, torch.Tensor]:
+        """Agent ``agent``'s Adam state as ``{prefix}.{parameter index}.{name}`` tensors (the
+        layout of a single-agent Adam's state dict)."""
+        out = {}
+        for index, s in enumerate(self.slices[agent]):
+            for name, value in self.optimizer.state.get(s, {}).items():
+                out[f"{prefix}.{index}.{name}"] = value.detach().cpu().clone()
+        return out
+
+    def load_agent_state(
+        self, agent: int, tensors: dict[str, torch.Tensor], prefix: str
+    ) -> None:
+        for index, s in enumerate(self.slices[agent]):
+            names = ("step", "exp_avg", "exp_avg_sq")
+            keys = [f"{prefix}.{index}.{name}" for name in names]
+            if all(k in tensors for k in keys):
+                self.optimizer.state[s] = {
+                    name: tensors[k].to(s.device, torch.float32).clone()
+                    if name == "step"
+                    else tensors[k].to(s).clone()
+                    for name, k in zip(names, keys, strict=True)
+                }
+            else:
+                self.optimizer.state.pop(s, None)

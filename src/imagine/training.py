@@ -1,0 +1,142 @@
+"""The training loop around :class:`~imagine.population.Population`: run folders, metrics,
+M's accuracy, checkpoints, stop signals.
+
+:func:`train_population` trains P agents (the seeds of one task and method) in lockstep, each
+into its own run folder, resuming any that was stopped. Each agent writes its own metrics rows
+(every ``log_every`` episodes), measures M's accuracy (every ``accuracy_every``), checkpoints
+(every ``checkpoint_every``, at its budget and on SIGINT/SIGTERM) and stops at its own budget.
+On a signal each agent finishes its episode and checkpoints; then :class:`Interrupted` is raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from imagine.agent import Agent, check_folder, make_encoder
+from imagine.checkpoint import atomic_write_text
+from imagine.config import AgentConfig
+from imagine.errors import Interrupted
+from imagine.evaluate import model_accuracy
+from imagine.metrics import MetricsLogger
+from imagine.population import Population
+from imagine.stopping import StopSignals
+
+
+@dataclasses.dataclass
+class PopulationResult:
+    agents: list[Agent | None]
+    """Each agent after its budget (None for one that failed)."""
+    failures: list[str]
+    """One line per failed agent, naming its folder."""
+
+
+def resolve_device(device: str) -> torch.device:
+    """``auto``: CUDA when there is a GPU, else the CPU; ``cuda`` without one is an error."""
+    from imagine.errors import ConfigError
+
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device not in ("cpu", "cuda"):
+        raise ConfigError(f"unknown device {device!r}; choose auto, cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("--device cuda, but torch sees no CUDA GPU here")
+    return torch.device(device)
+
+
+def train_population(
+    configs: Sequence[AgentConfig],
+    folders: Sequence[str | Path],
+    on_episode: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
+    encoder: Any = None,
+    device: str = "cpu",
+) -> PopulationResult:
+    """Train each ``configs[i]`` into ``folders[i]`` (resuming), all in one lockstep
+    population. ``on_episode(i, episode)`` is called after each of agent i's episodes."""
+    if threads is not None:
+        torch.set_num_threads(threads)
+    folders = [Path(f) for f in folders]
+    saved = [check_folder(config, folder) for config, folder in zip(configs, folders, strict=True)]
+    torch_device = resolve_device(device)
+    if encoder is None:
+        encoder = make_encoder(configs[0], torch_device)
+    population = Population(configs, encoder, torch_device)
+    loggers = []
+    for i, (config, folder) in enumerate(zip(configs, folders, strict=True)):
+        folder.mkdir(parents=True, exist_ok=True)
+        if saved[i] is not None:
+            population.load(i, folder)
+        atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
+        loggers.append(MetricsLogger(folder, resume_step=population.episode[i]))
+        if population.episode[i] >= config.episodes:
+            population.stop(i)
+    windows = [defaultdict(list, w) for w in population.saved_windows]
+    failures: list[str] = []
+    failed: set[int] = set()
+    with StopSignals() as stop:
+        while any(population.active):
+            for i, stats in population.step():
+                for key, value in stats.items():
+                    windows[i][key].append(value)
+                _after_episode(population, i, folders[i], loggers[i], windows[i], stop.signal)
+                if on_episode is not None:
+                    on_episode(i, population.episode[i])
+            for i, message in sorted(population.failures.items()):
+                failures.append(f"{folders[i]}: {message}")
+                failed.add(i)
+            population.failures.clear()
+    for logger in loggers:
+        logger.close()
+    if stop.signal:
+        name = signal.Signals(stop.signal).name
+        where = ", ".join(str(f) for f in folders)
+        raise Interrupted(
+            f"{name}: stopped {where} with a checkpoint; run the same command again to resume",
+            stop.signal,
+        )
+    agents = [None if i in failed else snapshot(population, i) for i in range(len(folders))]
+    return PopulationResult(agents, failures)
+
+
+def _after_episode(
+    population: Population,
+    i: int,
+    folder: Path,
+    logger: MetricsLogger,
+    window: dict[str, list[float]],
+    signal_number: int,
+) -> None:
+    """Agent i's episode just ended: accuracy, metrics row, checkpoint, stop at its budget."""
+    config = population.configs[i]
+    e = population.episode[i]
+    if population.trains_model and e % config.accuracy_every == 0:
+        _, model = population.networks(i)
+        for key, value in model_accuracy(model, population.encoder, config.task).items():
+            logger.record(f"model/{key}_accuracy", value)
+    if e % config.log_every == 0 or e == config.episodes:
+        for key, values in window.items():
+            logger.record(key, float(np.mean(values)))
+        logger.record("charts/time_steps", population.t[i])
+        logger.dump(e)
+        window.clear()
+    finished = e >= config.episodes
+    if e % config.checkpoint_every == 0 or finished or signal_number:
+        population.save(i, folder, dict(window))
+    if finished or signal_number:
+        population.stop(i)
+
+
+def snapshot(population: Population, i: int) -> Agent:
+    """Agent i as it is now, for evaluation and planning."""
+    controller, model = population.networks(i)
+    return Agent(population.configs[i], population.encoder, controller, model,
+                 population.episode[i], population.t[i])  # fmt: skip

@@ -1,0 +1,114 @@
+"""Population training: agents trained together have exactly the numbers they have alone."""
+
+import dataclasses
+
+import pytest
+import torch
+from torch import nn
+
+from imagine.agent import load_agent
+from imagine.config import agent_preset
+from imagine.errors import ConfigError
+from imagine.metrics import read_metrics
+from imagine.population import Population
+from imagine.stacked import PopulationAdam, StackedMLP, export_agent
+from imagine.training import train_population
+
+
+def numbers(folder):
+    return [{k: v for k, v in row.items() if not k.startswith("time")}
+            for row in read_metrics(folder / "metrics.csv")]  # fmt: skip
+
+
+def assert_same_agent(a, b):
+    assert (a.episode, a.t) == (b.episode, b.t)
+    for module_a, module_b in ((a.controller, b.controller), (a.model, b.model)):
+        for (name, p), q in zip(module_a.state_dict().items(), module_b.state_dict().values(),
+                                strict=True):  # fmt: skip
+            assert torch.equal(p, q), name
+
+
+@pytest.mark.parametrize("overrides", [
+    {},  # smoke: the paper's 50% dropout in M, so dropout masks are per agent too
+    {"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
+])  # fmt: skip
+def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
+    settings = {"encoder": "oracle", "method": "augmented", "episodes": 150,
+                "imagination_start": 60, "log_every": 10, "accuracy_every": 50,
+                "checkpoint_every": 50, **overrides}  # fmt: skip
+    seeds = (0, 1, 2)
+    configs = [agent_preset("smoke", seed=s, **settings) for s in seeds]
+    together = [tmp_path / f"together-{s}" for s in seeds]
+    train_population(configs, together, threads=1)
+    for config, folder in zip(configs, together, strict=True):
+        alone = tmp_path / f"alone-{config.seed}"
+        train_population([config], [alone], threads=1)
+        assert numbers(folder) == numbers(alone)
+        assert_same_agent(load_agent(folder), load_agent(alone))
+    # the seeds really are different runs, each past I_start with imagination
+    rows = [numbers(f)[-1] for f in together]
+    assert len({r["charts/return"] for r in rows}) > 1
+    assert all(r["charts/imagined_transitions"] > 0 for r in rows)
+
+
+def test_a_population_resumes_agents_at_different_points(tmp_path):
+    """Agents stopped at different episodes resume together and end as if never stopped."""
+    settings = {"encoder": "oracle", "method": "augmented", "imagination_start": 30,
+                "log_every": 10, "accuracy_every": 40, "checkpoint_every": 20}  # fmt: skip
+    straight = [tmp_path / f"straight-{s}" for s in (0, 1)]
+    resumed = [tmp_path / f"resumed-{s}" for s in (0, 1)]
+    train_population([agent_preset("smoke", seed=s, episodes=100, **settings) for s in (0, 1)],
+                     straight, threads=1)  # fmt: skip
+    train_population([agent_preset("smoke", seed=0, episodes=40, **settings)], resumed[:1])
+    train_population([agent_preset("smoke", seed=1, episodes=60, **settings)], resumed[1:])
+    train_population([agent_preset("smoke", seed=s, episodes=100, **settings) for s in (0, 1)],
+                     resumed, threads=1)  # fmt: skip
+    for a, b in zip(straight, resumed, strict=True):
+        assert numbers(a) == numbers(b)
+        assert_same_agent(load_agent(a), load_agent(b))
+
+
+def test_a_population_shares_everything_but_the_seed():
+    from imagine.encoder import OracleEncoder
+
+    a = agent_preset("smoke", encoder="oracle", seed=0)
+    with pytest.raises(ConfigError, match="only in their seed"):
+        Population([a, dataclasses.replace(a, seed=1, model_lr=0.01)], OracleEncoder())
+
+
+def test_stacked_mlp_computes_each_agents_own_network():
+    torch.manual_seed(0)
+    mlps = [nn.Sequential(nn.Linear(4, 16), nn.ReLU(), nn.Linear(16, 3)) for _ in range(3)]
+    stacked = StackedMLP(mlps)
+    x = torch.randn(3, 5, 4)
+    out = stacked(x)
+    for i, mlp in enumerate(mlps):
+        assert torch.allclose(out[i], mlp(x[i]), atol=1e-6)
+    copy = export_agent(stacked, 1, nn.Sequential(nn.Linear(4, 16), nn.ReLU(), nn.Linear(16, 3)))
+    assert torch.allclose(copy(x[1]), out[1], atol=1e-6)
+
+
+def test_population_adam_is_torch_adam_per_agent_and_skips_agents():
+    torch.manual_seed(0)
+    mlps = [nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 1)) for _ in range(3)]
+    references = [nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 1)) for _ in range(3)]
+    for mlp, ref in zip(mlps, references, strict=True):
+        ref.load_state_dict(mlp.state_dict())
+    stacked = StackedMLP(mlps)
+    optimizer = PopulationAdam(stacked.parameters(), 3, lr=0.01)
+    ref_optimizers = [torch.optim.Adam(r.parameters(), lr=0.01, fused=True) for r in references]
+    x, y = torch.randn(3, 16, 4), torch.randn(3, 16, 1)
+    for step in range(5):
+        agents = [0, 2] if step % 2 else [0, 1, 2]  # agent 1 sits out every other step
+        optimizer.zero_grad()
+        (stacked(x) - y).square().mean((1, 2))[agents].sum().backward()
+        optimizer.step(agents)
+        for i in agents:
+            ref_optimizers[i].zero_grad()
+            (references[i](x[i]) - y[i]).square().mean().backward()
+            ref_optimizers[i].step()
+    for i, ref in enumerate(references):
+        for p, q in zip(stacked.parameters(), ref.parameters(), strict=True):
+            assert torch.allclose(p[i], q, atol=1e-6)
+    state = optimizer.agent_state(1, "optim")
+    assert float(state["optim.0.step"]) == 3  # steps 0, 2, 4
