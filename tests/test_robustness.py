@@ -12,12 +12,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from imagine.agent import Agent, train
+from imagine.agent import train
 from imagine.config import agent_preset
 from imagine.encoder import OracleEncoder
 from imagine.errors import NumericalError
 from imagine.experiments import Job, LocalRunner
 from imagine.metrics import read_metrics
+from imagine.population import Population
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 SMOKE_RUN = ["--preset", "smoke", "--oracle", "--episodes", "120", "--set", "imagination_start=40",
@@ -39,13 +40,28 @@ def same_weights(a: Path, b: Path) -> bool:
     return x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x)
 
 
-def test_a_nan_loss_stops_the_run_naming_the_network_and_the_step():
-    agent = Agent(agent_preset("smoke", encoder="oracle"), OracleEncoder())
+def test_a_nan_loss_stops_that_agent_naming_the_network_and_the_step():
+    configs = [agent_preset("smoke", encoder="oracle", seed=s) for s in (0, 1)]
+    population = Population(configs, OracleEncoder())
     with torch.no_grad():
-        agent.model.reward.net[0].weight[0, 0] = float("nan")
-    with pytest.raises(NumericalError, match=r"M's r-network loss became nan at real time step"):
-        for _ in range(200):  # M's first update comes once M_R holds a batch
-            agent.run_episode()
+        population.model.reward.layers[0].weight[0, 0, 0] = float("nan")  # agent 0's r-network
+    for _ in range(50):
+        population.step()
+    assert population.active == [False, True]  # the other agent goes on
+    assert population.failures[0].startswith("M's r-network loss became nan at real time step")
+
+
+def test_a_single_run_with_a_nan_loss_raises(tmp_path, monkeypatch):
+    original = Population.__init__
+
+    def poisoned(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        with torch.no_grad():
+            self.model.terminal.layers[0].weight[0, 0, 0] = float("nan")
+
+    monkeypatch.setattr(Population, "__init__", poisoned)
+    with pytest.raises(NumericalError, match=r"M's d-network loss became nan"):
+        train(agent_preset("smoke", encoder="oracle", episodes=30), tmp_path / "run")
 
 
 def test_a_study_goes_on_when_one_run_diverges(tmp_path):

@@ -75,7 +75,6 @@ def test_make_vec_builds_the_vector_env(task: str) -> None:
         {"num_envs": 2.0},
         {"num_envs": 2, "task": "bogus"},
         {"num_envs": 2, "render_mode": "human"},
-        {"num_envs": 2, "autoreset_mode": AutoresetMode.DISABLED},
         {"num_envs": 2, "autoreset_mode": "sometimes"},
     ],
     ids=lambda kw: "-".join(f"{k}={v}" for k, v in kw.items()),
@@ -402,3 +401,14 @@ def test_render_returns_the_full_scenes() -> None:
         assert frame.shape == (144, 288, 3) and frame.dtype == np.uint8
         np.testing.assert_array_equal(frame[..., 0], frame[..., 1])
     assert make_vector(2, "original").render() is None
+
+
+def test_disabled_autoreset_resets_only_what_is_asked() -> None:
+    envs = GesturePuzzleVectorEnv(3, autoreset_mode=AutoresetMode.DISABLED)
+    _, info = envs.reset(seed=[5, 6, 7])
+    for _ in range(rules.MAX_EPISODE_ACTIONS):
+        *_, info = envs.step(np.zeros(3, dtype=np.int64))
+    assert (info["actions"] == rules.MAX_EPISODE_ACTIONS).all()  # no reset happened
+    mask = np.array([True, False, False])
+    _, info = envs.reset(options={"reset_mask": mask})
+    assert info["actions"].tolist() == [0, rules.MAX_EPISODE_ACTIONS, rules.MAX_EPISODE_ACTIONS]

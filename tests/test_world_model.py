@@ -8,6 +8,7 @@ import torch
 from imagine.world_model import (
     MDN,
     Mixture,
+    PopulationWorldModel,
     RewardNet,
     TerminalNet,
     WorldModel,
@@ -107,17 +108,34 @@ def test_log_cosh_is_stable():
 
 def test_world_model_update_resamples_latents_and_lowers_losses():
     torch.manual_seed(0)
-    model = WorldModel(latent_dim=4)
-    g = torch.Generator().manual_seed(0)
+    models = [WorldModel(latent_dim=4), WorldModel(latent_dim=4)]
+    population = PopulationWorldModel(models)
+    gens = [torch.Generator().manual_seed(0), torch.Generator().manual_seed(1)]
     n = 512
     mu = torch.randn(n, 4)
     action = torch.randint(6, (n,))
     next_mu = mu.roll(1, dims=1) + (action[:, None] == 0).float()  # a known transition
     reward, done = rule(next_mu)
-    batch = {"mu": mu, "sigma": torch.full((n, 4), 0.01), "action": action, "next_mu": next_mu,
-             "next_sigma": torch.full((n, 4), 0.01), "reward": reward, "done": done}  # fmt: skip
-    first = model.update(batch, g)
+    single = {"mu": mu, "sigma": torch.full((n, 4), 0.01), "action": action,
+              "next_mu": next_mu, "next_sigma": torch.full((n, 4), 0.01), "reward": reward,
+              "done": done}  # fmt: skip
+    batch = {k: torch.stack([v, v]) for k, v in single.items()}
+    first = population.update(batch, gens)
+    frozen = [p[1].clone() for p in population.parameters()]
     for _ in range(150):
-        last = model.update(batch, g)
+        last = population.update(batch, [gens[0], None])  # agent 1 sits out
     assert set(first) == {"mdn", "reward", "terminal"}
-    assert all(last[k] < first[k] for k in first)
+    assert all(last[k][0] < first[k][0] for k in first)
+    assert all(torch.equal(p[1], q) for p, q in zip(population.parameters(), frozen, strict=True))
+
+
+def test_population_samples_come_from_each_agents_mixture():
+    torch.manual_seed(0)
+    models = [WorldModel(latent_dim=2, dropout=0.0) for _ in range(2)]
+    population = PopulationWorldModel(models)
+    z, a = torch.randn(2, 3, 2), torch.randint(6, (2, 3))
+    g = torch.Generator().manual_seed(3)
+    drawn = population.sample(z, a, [None, g])
+    assert torch.equal(drawn[0], torch.zeros(3, 2))  # no generator, no draw
+    expected = models[1].mdn.sample(z[1], a[1], torch.Generator().manual_seed(3))
+    assert torch.allclose(drawn[1], expected, atol=1e-6)

@@ -99,7 +99,7 @@ def train(
         threads=threads, encoder=encoder, device=device,
     )  # fmt: skip
     if result.failures:
-        raise NumericalError(result.failures[0])
+        raise NumericalError(result.failures[0].split(": ", 1)[1])
     return result.agents[0]
 
 

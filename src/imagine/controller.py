@@ -20,7 +20,6 @@ from collections.abc import Sequence
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from imagine.stacked import PopulationAdam, StackedMLP
 

@@ -8,20 +8,25 @@ each budget stands for one run per budget (DESIGN.md section 3). A job whose eva
 all exist is finished and is never run again; an unfinished one resumes from its last
 checkpoint.
 
-Jobs run behind one interface, :class:`Runner`: :class:`LocalRunner` (processes on this
+The jobs that differ only in their seed train together as one population
+(:func:`population_groups`, :mod:`imagine.population`): the seeds of a (task, method) in
+lockstep in one process, each with exactly the numbers it would have alone.
+
+Populations run behind one interface, :class:`Runner`: :class:`LocalRunner` (processes on this
 machine, one torch thread each) or :class:`RayRunner` (a Ray cluster; ``pip install
-imagine[ray]``). Both call :func:`run_job`, so the numbers do not depend on the backend.
+imagine[ray]``). Both call :func:`run_jobs`, so the numbers do not depend on the backend.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import secrets
 import signal
 import tempfile
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -96,47 +101,82 @@ def study_jobs(
     ]
 
 
-def run_job(job: Job) -> list[dict[str, Any]]:
-    """Train ``job`` through its budgets, evaluating at each; returns the evaluations. Safe to
-    call again after a stop: finished budgets are read back, the run resumes where it was."""
+def population_groups(jobs: Iterable[Job]) -> list[tuple[Job, ...]]:
+    """The jobs grouped into populations: same settings and budgets, different seeds."""
+    groups: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        key = dataclasses.astuple(dataclasses.replace(job, folder="", seed=0))
+        groups.setdefault(key, []).append(job)
+    return [tuple(group) for group in groups.values()]
+
+
+def run_jobs(jobs: Sequence[Job], device: str = "cpu") -> dict[str, str | None]:
+    """Train ``jobs`` (one population: they differ only in seed) through their budgets,
+    evaluating each agent at each; returns each job's error (None: finished). Safe to call again
+    after a stop: finished budgets are read back, runs resume where they were."""
     from imagine.errors import Interrupted
     from imagine.stopping import StopSignals
 
     torch.set_num_threads(1)  # pools and Ray reuse workers: set it in every job
-    results = []
+    errors: dict[str, str | None] = {job.name: None for job in jobs}
     with StopSignals() as stop:  # a signal between trainings stops before the next budget
-        for budget in job.budgets:
+        for budget in jobs[0].budgets:
             if stop.signal:
-                raise Interrupted(f"{job.name} stopped before budget {budget}", stop.signal)
-            results.append(_run_budget(job, budget))
-    return results
+                raise Interrupted(f"{jobs[0].name} stopped before budget {budget}", stop.signal)
+            running = [job for job in jobs if errors[job.name] is None]
+            for job, error in zip(running, _run_budget(running, budget, device), strict=True):
+                errors[job.name] = error
+    return errors
 
 
-def _run_budget(job: Job, budget: int) -> dict[str, Any]:
-    """Train ``job`` to ``budget`` episodes (resuming) and evaluate it, or read that back."""
-    from imagine.agent import train
+def run_job(job: Job) -> list[dict[str, Any]]:
+    """One job alone (a population of one); returns its evaluations."""
+    error = run_jobs([job])[job.name]
+    if error is not None:
+        from imagine.errors import NumericalError
+
+        raise NumericalError(error)
+    return [read_json(job.evaluation_path(b), "evaluation") for b in job.budgets]
+
+
+def job_config(job: Job, budget: int):
+    """The agent config of ``job`` trained to ``budget`` episodes."""
     from imagine.config import agent_preset
-    from imagine.evaluate import greedy_success, model_accuracy
 
-    path = job.evaluation_path(budget)
-    if path.is_file():
-        return read_json(path, "evaluation")
-    config = agent_preset(
+    return agent_preset(
         job.preset, task=job.task, method=job.method, seed=job.seed, episodes=budget,
         encoder=job.encoder, vae_run=job.vae_run, **dict(job.overrides),
     )  # fmt: skip
-    agent = train(config, job.folder)
-    result = greedy_success(
-        agent.controller, agent.encoder, job.task, config.eval_episodes, EVAL_SEED
-    )
-    accuracy = None
-    if agent.trains_model:
-        accuracy = model_accuracy(agent.model, agent.encoder, job.task)
-    result = {"task": job.task, "method": job.method, "seed": job.seed, "budget": budget,
-              "time_steps": agent.t, **result, "model_accuracy": accuracy}  # fmt: skip
-    result |= studies_of_m(job, agent, budget)
-    write_json(path, result)
-    return result
+
+
+def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | None]:
+    """Train ``jobs`` to ``budget`` episodes (resuming) and evaluate each, unless its
+    evaluation is there already; each job's error or None."""
+    from imagine.evaluate import greedy_success, model_accuracy
+    from imagine.training import train_population
+
+    todo = [job for job in jobs if not job.evaluation_path(budget).is_file()]
+    if not todo:
+        return [None] * len(jobs)
+    configs = [job_config(job, budget) for job in todo]
+    result = train_population(configs, [job.folder for job in todo], device=device)
+    errors = {}
+    for i, (job, agent) in enumerate(zip(todo, result.agents, strict=True)):
+        if agent is None:
+            errors[job.name] = f"{job.name}: {result.failures[i]}"
+            continue
+        evaluation = greedy_success(
+            agent.controller, agent.encoder, job.task, agent.config.eval_episodes, EVAL_SEED
+        )
+        accuracy = None
+        if agent.trains_model:
+            accuracy = model_accuracy(agent.model, agent.encoder, job.task)
+        evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
+                      "budget": budget, "time_steps": agent.t, **evaluation,
+                      "model_accuracy": accuracy}  # fmt: skip
+        evaluation |= studies_of_m(job, agent, budget)
+        write_json(job.evaluation_path(budget), evaluation)
+    return [errors.get(job.name) for job in jobs]
 
 
 def studies_of_m(job: Job, agent, budget: int) -> dict[str, Any]:
@@ -171,14 +211,13 @@ class Runner(Protocol):
         ...
 
 
-def _guarded(job: Job) -> str | None:
-    """:func:`run_job` with any failure turned into a message, so the other jobs go on."""
+def _guarded(jobs: tuple[Job, ...]) -> dict[str, str | None]:
+    """:func:`run_jobs` with any failure turned into a message, so the other jobs go on."""
     try:
-        run_job(job)
-    except Exception as exc:  # a failed run must not stop the study
+        return run_jobs(jobs)
+    except Exception as exc:  # a failed population must not stop the study
         last = traceback.format_exception_only(exc)[-1].strip()
-        return f"{job.name}: {last}"
-    return None
+        return {job.name: f"{job.name}: {last}" for job in jobs}
 
 
 @dataclass
@@ -197,13 +236,14 @@ class LocalRunner:
         context = multiprocessing.get_context("spawn")
         with StopSignals() as stop, ProcessPoolExecutor(self.workers, mp_context=context) as pool:
             pending = {}
-            queue = list(jobs)
+            queue = population_groups(jobs)
             forwarded = False
             while queue or pending:
                 while queue and len(pending) < self.workers and not stop.signal:
-                    job = queue.pop(0)
-                    on_start(job)
-                    pending[pool.submit(_guarded, job)] = job
+                    group = queue.pop(0)
+                    for job in group:
+                        on_start(job)
+                    pending[pool.submit(_guarded, group)] = group
                 if stop.signal and not forwarded:
                     for child in multiprocessing.active_children():
                         os.kill(child.pid, stop.signal)
@@ -212,14 +252,15 @@ class LocalRunner:
                     break
                 done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                 for future in done:
-                    job = pending.pop(future)
+                    group = pending.pop(future)
                     try:
-                        error = future.result()
+                        errors = future.result()
                     except BrokenProcessPool:
-                        error = f"{job.name}: its worker process died"
-                    on_done(job, error)
-                    if error is not None and "worker process died" in error:
-                        for other in pending.values():
+                        errors = {job.name: f"{job.name}: its worker process died" for job in group}
+                    for job in group:
+                        on_done(job, errors[job.name])
+                    if any(e is not None and "worker process died" in e for e in errors.values()):
+                        for other in (job for g in pending.values() for job in g):
                             on_done(other, f"{other.name}: its worker process died")
                         raise ImagineError(
                             "a worker process died (killed, or out of memory); finished runs "
@@ -266,13 +307,16 @@ class RayRunner:
         try:
             remote = ray.remote(num_cpus=1)(_guarded)
             pending = {}
-            for job in jobs:
-                on_start(job)
-                pending[remote.remote(job)] = job
+            for group in population_groups(jobs):
+                for job in group:
+                    on_start(job)
+                pending[remote.remote(group)] = group
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
-                    on_done(pending.pop(ref), ray.get(ref))
+                    errors = ray.get(ref)
+                    for job in pending.pop(ref):
+                        on_done(job, errors[job.name])
         finally:
             if started:
                 ray.shutdown()

@@ -144,7 +144,8 @@ class ReplayMemory:
             position, size, added = (int(x) for x in tensors[f"{prefix}._counters"])
             for name, value in self.data.items():
                 stored = tensors[f"{prefix}.{name}"]
-                if stored.shape[1:] != value.shape[2:] or len(stored) != size or size > self.capacity:
+                wrong = stored.shape[1:] != value.shape[2:] or len(stored) != size
+                if wrong or size > self.capacity:
                     raise CheckpointError(f"memory {prefix}.{name} has shape {tuple(stored.shape)}")
                 value[agent, :size] = stored.to(value)
         except KeyError as exc:

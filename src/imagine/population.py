@@ -31,8 +31,13 @@ import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
 
-from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json, save_tensors
-from imagine.checkpoint import write_json
+from imagine.checkpoint import (
+    load_state_dict_strict,
+    load_tensors,
+    read_json,
+    save_tensors,
+    write_json,
+)
 from imagine.config import AgentConfig
 from imagine.controller import Controller, PopulationController, epsilon
 from imagine.env.rules import REWARD_GOAL
@@ -214,8 +219,10 @@ class Population:
         if not imagining:
             return
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
-        rollouts = imagine_rollouts(self.model, self.controller, self.mu, self.sigma,
-                                    c.imagination_breadth, c.imagination_depth, eps, gens)  # fmt: skip
+        rollouts = imagine_rollouts(
+            self.model, self.controller, self.mu, self.sigma, c.imagination_breadth,
+            c.imagination_depth, eps, gens,
+        )  # fmt: skip
         for i in imagining:
             self.imaginary.add(i, **rollouts[i])
             self._episode[i].imagined += len(rollouts[i]["z"])

@@ -35,8 +35,8 @@ from imagine.stopping import StopSignals
 class PopulationResult:
     agents: list[Agent | None]
     """Each agent after its budget (None for one that failed)."""
-    failures: list[str]
-    """One line per failed agent, naming its folder."""
+    failures: dict[int, str]
+    """A line for each agent that failed (by index), naming its folder."""
 
 
 def resolve_device(device: str) -> torch.device:
@@ -80,8 +80,7 @@ def train_population(
         if population.episode[i] >= config.episodes:
             population.stop(i)
     windows = [defaultdict(list, w) for w in population.saved_windows]
-    failures: list[str] = []
-    failed: set[int] = set()
+    failures: dict[int, str] = {}
     with StopSignals() as stop:
         while any(population.active):
             for i, stats in population.step():
@@ -91,8 +90,7 @@ def train_population(
                 if on_episode is not None:
                     on_episode(i, population.episode[i])
             for i, message in sorted(population.failures.items()):
-                failures.append(f"{folders[i]}: {message}")
-                failed.add(i)
+                failures[i] = f"{folders[i]}: {message}"
             population.failures.clear()
     for logger in loggers:
         logger.close()
@@ -103,7 +101,7 @@ def train_population(
             f"{name}: stopped {where} with a checkpoint; run the same command again to resume",
             stop.signal,
         )
-    agents = [None if i in failed else snapshot(population, i) for i in range(len(folders))]
+    agents = [None if i in failures else snapshot(population, i) for i in range(len(folders))]
     return PopulationResult(agents, failures)
 
 

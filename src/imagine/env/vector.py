@@ -12,8 +12,8 @@ after an episode ends resets that sub-environment and ignores its action, with r
 ``SAME_STEP`` (the reset happens in the step that ends the episode; the last observation and
 macrostate go to ``info["final_obs"]`` and ``info["final_macrostate"]``, marked by
 ``info["_final_obs"]``) or ``DISABLED`` (no resets but those asked for with
-``reset(options={"reset_mask": ...})``). ``info["macrostate"]`` is an int64 (N, 4) array and ``info["actions"]``
-the actions taken so far in each episode.
+``reset(options={"reset_mask": ...})``). ``info["macrostate"]`` is an int64 (N, 4) array
+and ``info["actions"]`` the actions taken so far in each episode.
 """
 
 from __future__ import annotations
