@@ -32,7 +32,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/env_speed.py
 	$(BIN)/python benchmarks/vae_speed.py
-	$(BIN)/python benchmarks/agent_speed.py
+	$(BIN)/python benchmarks/population_speed.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache

@@ -222,6 +222,7 @@ def train_agent(
         bool, typer.Option(help="Feed C and M the true macrostate's embedding.")
     ] = False,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
+    device: Annotated[str, typer.Option(help="auto (CUDA if present), cpu or cuda.")] = "cpu",
     config_file: Annotated[
         Path | None,
         typer.Option("--config", help="YAML mapping of agent config fields over the preset."),
@@ -241,14 +242,17 @@ def train_agent(
     if episodes is not None:
         overrides["episodes"] = episodes
     config = agent_preset(preset, **overrides)
+    from imagine.devices import resolve_device
+
     check_folder(config, out)  # errors before any progress bar is drawn
-    encoder = make_encoder(config)
+    torch_device = resolve_device(device)
+    encoder = make_encoder(config, torch_device)
     start = time.perf_counter()
     with Progress(TextColumn(f"{config.method} {config.task} seed {config.seed}"), BarColumn(),
                   MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
         task_id = bar.add_task("episodes", total=config.episodes)
         agent = train(config, out, on_episode=lambda e: bar.update(task_id, completed=e),
-                      threads=threads, encoder=encoder)  # fmt: skip
+                      threads=threads, encoder=encoder, device=str(torch_device))  # fmt: skip
     seconds = time.perf_counter() - start
     done = f"{agent.episode} episodes, {agent.t} time steps, {seconds:.0f} s"
     console.print(f"trained {out}: {done}; next: imagine evaluate {out}")
@@ -356,6 +360,9 @@ def reproduce_study(
     separate_runs: Annotated[
         bool, typer.Option(help="One run per budget from scratch (default: one run per seed).")
     ] = False,
+    device: Annotated[
+        str, typer.Option(help="Where the populations train: auto (CUDA if present), cpu, cuda.")
+    ] = "cpu",
     set_: SetOption = None,
 ) -> None:
     """The paper's section V in one command: V, every (task, method, seed) agent evaluated at
@@ -373,7 +380,7 @@ def reproduce_study(
         preset=preset, tasks=tuple(t.strip() for t in tasks.split(",")), seeds=seeds,
         budgets=numbers(budgets, "budgets"), backend=backend, workers=workers, address=address,
         vae_run=None if vae is None else str(vae), oracle=oracle, separate_runs=separate_runs,
-        overrides=parse_assignments(set_ or []),
+        overrides=parse_assignments(set_ or []), device=device,
     )  # fmt: skip
     start = time.perf_counter()
     total = len(config.tasks) * 2 * config.seeds * (len(config.budgets) if separate_runs else 1)

@@ -211,10 +211,10 @@ class Runner(Protocol):
         ...
 
 
-def _guarded(jobs: tuple[Job, ...]) -> dict[str, str | None]:
+def _guarded(jobs: tuple[Job, ...], device: str = "cpu") -> dict[str, str | None]:
     """:func:`run_jobs` with any failure turned into a message, so the other jobs go on."""
     try:
-        return run_jobs(jobs)
+        return run_jobs(jobs, device)
     except Exception as exc:  # a failed population must not stop the study
         last = traceback.format_exception_only(exc)[-1].strip()
         return {job.name: f"{job.name}: {last}" for job in jobs}
@@ -225,6 +225,7 @@ class LocalRunner:
     """Processes on this machine (spawned, one torch thread each)."""
 
     workers: int = 2
+    device: str = "cpu"
 
     def run(self, jobs, on_start, on_done) -> None:
         """SIGINT or SIGTERM stops the study cleanly: no new job starts, the signal goes on to
@@ -243,7 +244,7 @@ class LocalRunner:
                     group = queue.pop(0)
                     for job in group:
                         on_start(job)
-                    pending[pool.submit(_guarded, group)] = group
+                    pending[pool.submit(_guarded, group, self.device)] = group
                 if stop.signal and not forwarded:
                     for child in multiprocessing.active_children():
                         os.kill(child.pid, stop.signal)
@@ -282,6 +283,7 @@ class RayRunner:
     workers: int = 2
     address: str | None = None
     temp_dir: str | None = None
+    device: str = "cpu"
     _link: Path | None = field(default=None, init=False, repr=False)
 
     def run(self, jobs, on_start, on_done) -> None:
@@ -310,7 +312,7 @@ class RayRunner:
             for group in population_groups(jobs):
                 for job in group:
                     on_start(job)
-                pending[remote.remote(group)] = group
+                pending[remote.remote(group, self.device)] = group
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:

@@ -56,6 +56,8 @@ class StudyConfig:
     on the budget)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Agent config fields over the preset (--set)."""
+    device: str = "cpu"
+    """Where the populations train: auto, cpu or cuda (V trains on auto)."""
 
     def __post_init__(self) -> None:
         from imagine.env.rules import TASKS
@@ -70,6 +72,9 @@ class StudyConfig:
             raise ConfigError(f"budgets must be positive episode counts, got {self.budgets}")
         if self.backend not in ("local", "ray"):
             raise ConfigError(f"unknown backend {self.backend!r}; choose local or ray")
+        from imagine.devices import resolve_device
+
+        resolve_device(self.device)
         if self.workers < 1:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
         # every budget's agent config must be valid before anything runs
@@ -198,7 +203,7 @@ def reproduce(
     mine = dataclasses.asdict(config)
     if saved.is_file():
         before = yaml.safe_load(saved.read_text())
-        keep = ("backend", "workers", "address")
+        keep = ("backend", "workers", "address", "device")
         if {k: v for k, v in before.items() if k not in keep} != {
             k: v for k, v in yaml.safe_load(yaml.safe_dump(mine)).items() if k not in keep
         }:
@@ -227,9 +232,9 @@ def reproduce(
 
     if todo:
         runner = (
-            LocalRunner(config.workers)
+            LocalRunner(config.workers, config.device)
             if config.backend == "local"
-            else RayRunner(config.workers, config.address, str(out / "ray"))
+            else RayRunner(config.workers, config.address, str(out / "ray"), config.device)
         )
         runner.run(todo, on_start or (lambda job: None), done)
     return write_report(config, out, jobs, failures), failures

@@ -24,6 +24,7 @@ import yaml
 from imagine.agent import Agent, check_folder, make_encoder
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
+from imagine.devices import resolve_device
 from imagine.errors import Interrupted
 from imagine.evaluate import model_accuracy
 from imagine.metrics import MetricsLogger
@@ -37,19 +38,6 @@ class PopulationResult:
     """Each agent after its budget (None for one that failed)."""
     failures: dict[int, str]
     """A line for each agent that failed (by index), naming its folder."""
-
-
-def resolve_device(device: str) -> torch.device:
-    """``auto``: CUDA when there is a GPU, else the CPU; ``cuda`` without one is an error."""
-    from imagine.errors import ConfigError
-
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if device not in ("cpu", "cuda"):
-        raise ConfigError(f"unknown device {device!r}; choose auto, cpu or cuda")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("--device cuda, but torch sees no CUDA GPU here")
-    return torch.device(device)
 
 
 def train_population(

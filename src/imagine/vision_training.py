@@ -35,6 +35,7 @@ from imagine.checkpoint import (
 )
 from imagine.config import VisionConfig, from_dict
 from imagine.dataset import DatasetConfig, load_dataset, synthesize
+from imagine.devices import resolve_device
 from imagine.errors import CheckpointError, ConfigError
 from imagine.latent_classifier import LatentClassifier
 from imagine.metrics import MetricsLogger
@@ -49,15 +50,6 @@ class VisionData:
     train_states: np.ndarray
     test_images: np.ndarray
     test_states: np.ndarray
-
-
-def resolve_device(device: str) -> torch.device:
-    """``auto`` picks CUDA when there is one; ``cuda`` without one is a config error."""
-    if device not in ("auto", "cpu", "cuda"):
-        raise ConfigError(f"unknown device {device!r}; choose auto, cpu or cuda")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("device 'cuda' was asked for but no CUDA device is available")
-    return torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
 
 
 def make_data(config: VisionConfig) -> VisionData:

@@ -1,0 +1,145 @@
+"""Real time steps per second of Algorithm 1 for populations of 1, 5 and 20 agents, the cost of
+one M update, and how close both come to the machine's peak FLOP rate.
+
+For `fast` and `paper` (augmented, imagination from the first episode, oracle encoder so vision
+does not count; V's cost is in vae_speed.py): each population is built, M_R gets a batch of
+random transitions per agent, and ``--steps`` lockstep steps are timed after one warm-up step.
+FLOPs are counted by ``torch.utils.flop_counter`` (matrix products, forward and backward) over
+one step and one M update. The peak is a large float32 matrix product timed in the same run,
+with the same number of threads. The last lines: peak memory of this process (it ends with the
+20-agent `paper` population, the paper's whole study in one process) and 1000 greedy test
+episodes through V (untrained weights; the cost does not depend on them).
+
+    .venv/bin/python benchmarks/population_speed.py [--threads 1] [--steps 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+
+import numpy as np
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from imagine.config import agent_preset
+from imagine.encoder import OracleEncoder
+from imagine.population import Population
+
+
+def peak_flops(n: int = 2048, repeats: int = 5) -> float:
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    a @ b
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    return repeats * 2 * n**3 / (time.perf_counter() - start)
+
+
+def population(preset: str, agents: int) -> Population:
+    configs = [
+        agent_preset(preset, encoder="oracle", method="augmented", imagination_start=0,
+                     episodes=10**6, seed=seed)  # fmt: skip
+        for seed in range(agents)
+    ]
+    pop = Population(configs, OracleEncoder())
+    n, d = configs[0].model_batch, 8
+    for i in range(agents):  # M_R needs a batch's worth before the first update
+        pop.real.add(
+            i, mu=torch.randn(n, d), sigma=torch.full((n, d), 0.05),
+            action=torch.randint(6, (n,)), next_mu=torch.randn(n, d),
+            next_sigma=torch.full((n, d), 0.05), reward=torch.full((n,), -1.0),
+            done=torch.zeros(n),
+        )  # fmt: skip
+    return pop
+
+
+def timed(fn, repeats: int) -> float:
+    start = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return (time.perf_counter() - start) / repeats
+
+
+def flops_of(fn) -> int:
+    counter = FlopCounterMode(display=False)
+    with counter:
+        fn()
+    return counter.get_total_flops()
+
+
+def measure(preset: str, agents: int, steps: int, peak: float) -> dict[str, float]:
+    pop = population(preset, agents)
+    c = pop.config
+    pop.step()  # warm-up (and imagination memories filled)
+    step_flops = flops_of(pop.step)
+    step_s = timed(pop.step, steps)
+    gens = list(pop.generators)
+    batch = pop.real.sample(c.model_batch, gens)
+    update_flops = flops_of(lambda: pop.model.update(batch, gens))
+    update_s = timed(lambda: pop.model.update(batch, gens), max(steps, 5))
+    return {
+        "steps_per_s": agents / step_s,
+        "step_ms": 1000 * step_s,
+        "m_update_ms": 1000 * update_s,
+        "m_share": c.model_updates * update_s / step_s,
+        "m_peak": update_flops / update_s / peak,
+        "step_peak": step_flops / step_s / peak,
+        "gflop_per_step": step_flops / 1e9 / agents,
+    }
+
+
+def greedy_seconds(episodes: int = 1000) -> tuple[float, float]:
+    from imagine.controller import Controller
+    from imagine.env import make_composer
+    from imagine.evaluate import greedy_success
+    from imagine.vision import ConvVAE
+
+    class Encoder:  # V's cost, without a trained V run
+        latent_dim = 8
+
+        def __init__(self) -> None:
+            self.vae = ConvVAE(latent_dim=8).eval()
+
+        def encode(self, images, states):
+            from imagine.vision import encode_images
+
+            return encode_images(self.vae, images)
+
+    torch.manual_seed(0)
+    controller, encoder = Controller(8), Encoder()
+    start = time.perf_counter()
+    result = greedy_success(controller, encoder, "original", episodes, seed=0,
+                            composer=make_composer())  # fmt: skip
+    return time.perf_counter() - start, float(np.mean(result["mean_return"]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--agents", default="1,5,20")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    peak = peak_flops()
+    print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
+    print("| preset | agents | agent steps/s | ms per lockstep step | M update ms | "
+          "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for preset in ("fast", "paper"):
+        for agents in (int(a) for a in args.agents.split(",")):
+            steps = args.steps if preset == "fast" else 2
+            m = measure(preset, agents, steps, peak)
+            print(f"| {preset} | {agents} | {m['steps_per_s']:.1f} | {m['step_ms']:.1f} | "
+                  f"{m['m_update_ms']:.1f} | {100 * m['m_share']:.0f}% | "
+                  f"{100 * m['m_peak']:.0f}% | {100 * m['step_peak']:.0f}% | "
+                  f"{m['gflop_per_step']:.2f} |", flush=True)  # fmt: skip
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    print(f"peak memory of this process: {rss:.2f} GiB")
+    seconds, _ = greedy_seconds()
+    print(f"1000 greedy test episodes through V, {args.threads} thread(s): {seconds:.2f} s")
+
+
+if __name__ == "__main__":
+    main()
