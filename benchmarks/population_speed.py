@@ -38,11 +38,9 @@ def peak_flops(n: int = 2048, repeats: int = 5) -> float:
 
 
 def population(preset: str, agents: int) -> Population:
-    configs = [
-        agent_preset(preset, encoder="oracle", method="augmented", imagination_start=0,
-                     episodes=10**6, seed=seed)  # fmt: skip
-        for seed in range(agents)
-    ]
+    settings = {"encoder": "oracle", "method": "augmented", "imagination_start": 0,
+                "episodes": 10**6}  # fmt: skip
+    configs = [agent_preset(preset, seed=seed, **settings) for seed in range(agents)]
     pop = Population(configs, OracleEncoder())
     n, d = configs[0].model_batch, 8
     for i in range(agents):  # M_R needs a batch's worth before the first update
