@@ -108,7 +108,9 @@ def test_population_adam_is_torch_adam_per_agent_and_skips_agents():
             (references[i](x[i]) - y[i]).square().mean().backward()
             ref_optimizers[i].step()
     for i, ref in enumerate(references):
-        for p, q in zip(stacked.parameters(), ref.parameters(), strict=True):
-            assert torch.allclose(p[i], q, atol=1e-6)
+        trained = export_agent(stacked, i, nn.Sequential(nn.Linear(4, 8), nn.ReLU(),
+                                                         nn.Linear(8, 1)))  # fmt: skip
+        for p, q in zip(trained.parameters(), ref.parameters(), strict=True):
+            assert torch.allclose(p, q, atol=1e-6)
     state = optimizer.agent_state(1, "optim")
     assert float(state["optim.0.step"]) == 3  # steps 0, 2, 4

@@ -32,20 +32,24 @@ def linears(module: nn.Module) -> list[nn.Linear]:
 
 
 class StackedLinear(nn.Module):
-    """P linear layers of the same shape: x (P, N, in) -> (P, N, out)."""
+    """P linear layers of the same shape: x (P, N, in) -> (P, N, out). The weight is kept as
+    (P, in, out), the layout the batched product reads, so its gradient arrives in the
+    parameter's own layout (an (out, in) weight used transposed gets a transposed gradient,
+    which autograd then copies)."""
 
     def __init__(self, layers: Sequence[nn.Linear]) -> None:
         super().__init__()
-        self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]))
+        self.weight = nn.Parameter(torch.stack([layer.weight.detach().T for layer in layers]))
         self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if self.weight.shape[1] == 1:
+        if self.weight.shape[2] == 1:
             # one output unit: a product and a sum, because a batched product with a single
             # output column takes another kernel for one agent than for several, and rounds
             # differently (an agent's numbers would depend on the population's size)
-            return (x * self.weight).sum(-1, keepdim=True) + self.bias.unsqueeze(1)
-        return torch.baddbmm(self.bias.unsqueeze(1), aligned(x), self.weight.transpose(1, 2))
+            w = self.weight.transpose(1, 2)
+            return (x * w).sum(-1, keepdim=True) + self.bias.unsqueeze(1)
+        return torch.baddbmm(self.bias.unsqueeze(1), aligned(x), self.weight)
 
 
 ALIGN = 16
@@ -71,14 +75,15 @@ def aligned(x: torch.Tensor) -> torch.Tensor:
 def agent_dropout(
     x: torch.Tensor, p: float, generators: Sequence[torch.Generator | None]
 ) -> torch.Tensor:
-    """Inverted dropout with each agent's mask drawn from its own generator; an agent whose
-    generator is None (not updating) draws nothing and keeps every unit."""
+    """Inverted dropout with each agent's mask drawn from its own generator (uniform draws
+    below 1 - p: three times faster on a CPU than ``bernoulli_`` with a generator); an agent
+    whose generator is None (not updating) draws nothing and keeps every unit."""
     keep = 1.0 - p
-    mask = torch.ones_like(x)
+    mask = torch.full_like(x, keep)  # rescaled below to 1 for agents that draw nothing
     for i, generator in enumerate(generators):
         if generator is not None:
-            mask[i].bernoulli_(keep, generator=generator)
-    return x * mask / keep
+            mask[i] = torch.rand(x.shape[1:], generator=generator, device=x.device) < keep
+    return x * mask * (1.0 / keep)
 
 
 class StackedMLP(nn.Module):
@@ -109,20 +114,28 @@ class StackedMLP(nn.Module):
         return x
 
 
+def _pairs(stacked: nn.Module, module: nn.Module) -> list[tuple[StackedLinear, nn.Linear]]:
+    """Each stacked layer with the single-agent layer it stands for (registration order)."""
+    layers = [m for m in stacked.modules() if isinstance(m, StackedLinear)]
+    return list(zip(layers, linears(module), strict=True))
+
+
 @torch.no_grad()
 def export_agent(stacked: nn.Module, agent: int, module: nn.Module) -> nn.Module:
     """Copy agent ``agent``'s slices into a single-agent module of the same architecture
-    (parameters registered in the same order); returns the module."""
-    for s, m in zip(stacked.parameters(), module.parameters(), strict=True):
-        m.copy_(s[agent])
+    (linear layers registered in the same order); returns the module."""
+    for s, m in _pairs(stacked, module):
+        m.weight.copy_(s.weight[agent].T)
+        m.bias.copy_(s.bias[agent])
     return module
 
 
 @torch.no_grad()
 def import_agent(stacked: nn.Module, agent: int, module: nn.Module) -> None:
     """Copy a single-agent module's parameters into agent ``agent``'s slices."""
-    for s, m in zip(stacked.parameters(), module.parameters(), strict=True):
-        s[agent].copy_(m)
+    for s, m in _pairs(stacked, module):
+        s.weight[agent].copy_(m.weight.T)
+        s.bias[agent].copy_(m.bias)
 
 
 class PopulationAdam:
@@ -156,8 +169,8 @@ class PopulationAdam:
         self.optimizer.step()
 
     def agent_state(self, agent: int, prefix: str) -> dict[str, torch.Tensor]:
-        """Agent ``agent``'s Adam state as ``{prefix}.{parameter index}.{name}`` tensors (the
-        layout of a single-agent Adam's state dict)."""
+        """Agent ``agent``'s Adam state as ``{prefix}.{parameter index}.{name}`` tensors, in
+        the stacked parameters' order and layout (weights (in, out))."""
         out = {}
         for index, s in enumerate(self.slices[agent]):
             for name, value in self.optimizer.state.get(s, {}).items():
