@@ -114,3 +114,19 @@ def test_population_adam_is_torch_adam_per_agent_and_skips_agents():
             assert torch.allclose(p, q, atol=1e-6)
     state = optimizer.agent_state(1, "optim")
     assert float(state["optim.0.step"]) == 3  # steps 0, 2, 4
+
+
+def test_a_run_resumes_only_on_the_device_type_it_was_trained_on(tmp_path):
+    import json
+
+    from imagine.errors import CheckpointError
+
+    config = agent_preset("smoke", encoder="oracle", episodes=20, imagination_start=10)
+    train_population([config], [tmp_path / "run"], threads=1)
+    meta = json.loads((tmp_path / "run" / "agent.json").read_text())
+    assert meta["device"] == "cpu"
+    meta["device"] = "cuda"  # as if trained on a GPU: its generator states are CUDA states
+    (tmp_path / "run" / "agent.json").write_text(json.dumps(meta))
+    longer = dataclasses.replace(config, episodes=30)
+    with pytest.raises(CheckpointError, match="trained on cuda; resume it with --device cuda"):
+        train_population([longer], [tmp_path / "run"], threads=1)

@@ -130,6 +130,8 @@ class PopulationController(nn.Module):
         if self.target is not None:
             due = chosen[self.updates[chosen] % self.target_update_period == 0]
             with torch.no_grad():
+                if not len(due):
+                    return loss.detach()
                 for t, q_param in zip(self.target.parameters(), self.q.parameters(), strict=True):
                     t[due] = q_param[due]
         return loss.detach()

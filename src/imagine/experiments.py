@@ -307,7 +307,10 @@ class RayRunner:
                 ray.init(num_cpus=self.workers, include_dashboard=False, log_to_driver=False,
                          _temp_dir=temp, _node_ip_address="127.0.0.1")  # fmt: skip
         try:
-            remote = ray.remote(num_cpus=1)(_guarded)
+            # a task that asks for no GPU sees none (Ray empties CUDA_VISIBLE_DEVICES)
+            gpus = ray.cluster_resources().get("GPU", 0) if self.device != "cpu" else 0
+            share = min(1.0, gpus / self.workers) if gpus else 0
+            remote = ray.remote(num_cpus=1, num_gpus=share)(_guarded)
             pending = {}
             for group in population_groups(jobs):
                 for job in group:

@@ -48,7 +48,8 @@ def imagine_rollouts(
     steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
     kept: list[torch.Tensor] = []  # which rollouts were alive at each step
     for _ in range(depth):
-        drawing = [g if bool(going[i]) else None for i, g in enumerate(generators)]
+        flags = going.tolist()  # one read of the device per depth step
+        drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing)
         next_z = model.sample(z, action, drawing)
         done = model.is_terminal(next_z)

@@ -112,14 +112,15 @@ class ReplayMemory:
         uniformly with replacement from agent i's ring with ``generators[i]``; an agent whose
         generator is None draws nothing and gets its first slot repeated."""
         device = next(iter(self.data.values())).device
-        index = torch.zeros((self.agents, batch_size), dtype=torch.int64)
+        index = torch.zeros((self.agents, batch_size), dtype=torch.int64, device=device)
         for i, generator in enumerate(generators):
             if generator is None:
                 continue
             if self.size[i] == 0:
                 raise ValueError("cannot sample from an empty memory")
-            index[i] = torch.randint(self.size[i], (batch_size,), generator=generator)
-        index = index.to(device)
+            index[i] = torch.randint(
+                self.size[i], (batch_size,), generator=generator, device=generator.device
+            )
         rows = torch.arange(self.agents, device=device).unsqueeze(1)
         return {name: value[rows, index] for name, value in self.data.items()}
 

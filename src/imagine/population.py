@@ -11,7 +11,9 @@ M_R and M_I, its epsilon, its Adam state and its own ``torch.Generator`` for eve
 (batches, latent re-sampling, dropout masks, exploration, mixture samples). Agent i draws the
 same numbers in the same order whatever the other agents do, so a population of one is training
 alone, and an agent's numbers in a population equal its numbers alone
-(``tests/test_population.py``). Agents run until their own episode budget; one whose loss
+(``tests/test_population.py``: bitwise on a CPU with one thread and the oracle encoder; V
+encodes every agent's observation in one batch, which can round a latent differently from a
+batch of one). Agents run until their own episode budget; one whose loss
 becomes non-finite is stopped and reported while the others go on.
 
 Checkpoints are per agent, one run folder each, in the single-agent format (the state dicts of
@@ -293,6 +295,7 @@ class Population:
             "controller_updates": int(self.controller.updates[agent]),
             "env_rng": json.loads(json.dumps(state)),
             "config": dataclasses.asdict(self.configs[agent]), "window": window or {},
+            "device": self.device.type,
         })  # fmt: skip
 
     def load(self, agent: int, folder: Path) -> None:
@@ -301,6 +304,11 @@ class Population:
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise CheckpointError(
                 f"{folder / 'agent.json'} is not an agent checkpoint of this version"
+            )
+        saved_device = meta.get("device", "cpu")
+        if saved_device != self.device.type:  # generator states differ between devices
+            raise CheckpointError(
+                f"{folder} was trained on {saved_device}; resume it with --device {saved_device}"
             )
         tensors = load_tensors(folder / "agent.safetensors", "agent checkpoint")
         where = str(folder / "agent.safetensors")

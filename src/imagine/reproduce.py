@@ -203,7 +203,7 @@ def reproduce(
     mine = dataclasses.asdict(config)
     if saved.is_file():
         before = yaml.safe_load(saved.read_text())
-        keep = ("backend", "workers", "address", "device")
+        keep = ("backend", "workers", "address")
         if {k: v for k, v in before.items() if k not in keep} != {
             k: v for k, v in yaml.safe_load(yaml.safe_dump(mine)).items() if k not in keep
         }:

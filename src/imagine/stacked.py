@@ -25,6 +25,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from imagine.errors import CheckpointError
+
 
 def linears(module: nn.Module) -> list[nn.Linear]:
     """The linear layers of a module, in registration order."""
@@ -184,6 +186,12 @@ class PopulationAdam:
             names = ("step", "exp_avg", "exp_avg_sq")
             keys = [f"{prefix}.{index}.{name}" for name in names]
             if all(k in tensors for k in keys):
+                for k in keys[1:]:
+                    if tensors[k].shape != s.shape:
+                        raise CheckpointError(
+                            f"optimizer state {k} has shape {tuple(tensors[k].shape)}, "
+                            f"expected {tuple(s.shape)}"
+                        )
                 self.optimizer.state[s] = {
                     name: tensors[k].to(s.device, torch.float32).clone()
                     if name == "step"
