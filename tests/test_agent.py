@@ -112,6 +112,16 @@ def test_train_and_evaluate_commands(tmp_path):
     assert (run / "evaluation.json").is_file()
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert saved["gamma"] == 0.9 and saved["dropout"] == 0.25
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "pop"), "--preset", "smoke",
+                           "--oracle", "--episodes", "30", "--seeds", "3,1",
+                           "--set", "imagination_start=10"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    for s in (1, 3):
+        assert load_agent(tmp_path / "pop" / f"seed-{s}").config.seed == s
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "pop"), "--seeds", "1,x"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 2 and "--seeds expects comma-separated integers" in done.stderr
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--preset", "smoke"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 2 and "no V run was given" in done.stderr

@@ -216,6 +216,11 @@ def train_agent(
     ] = MethodName.augmented,
     episodes: Annotated[int | None, typer.Option(help="Training episodes.")] = None,
     seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
+    seeds: Annotated[
+        str | None,
+        typer.Option(help="Comma-separated seeds trained together as one population, each "
+                     "into OUT/seed-N (each with exactly its numbers alone)."),
+    ] = None,
     preset: PresetOption = "fast",
     vae: Annotated[Path | None, typer.Option(help="V run folder (imagine vae train).")] = None,
     oracle: Annotated[
@@ -230,9 +235,14 @@ def train_agent(
     set_: SetOption = None,
 ) -> None:
     """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
-    TensorBoard) and checkpoints. Run it again to resume."""
-    from imagine.agent import check_folder, make_encoder, train
+    TensorBoard) and checkpoints; with --seeds, several in lockstep. Run it again to resume."""
+    import dataclasses
+
+    from imagine.agent import check_folder, make_encoder
     from imagine.config import agent_preset, load_yaml, parse_assignments
+    from imagine.devices import resolve_device
+    from imagine.errors import NumericalError
+    from imagine.training import train_population
 
     overrides: dict = load_yaml(config_file) if config_file is not None else {}
     overrides |= parse_assignments(set_ or [])
@@ -242,20 +252,40 @@ def train_agent(
     if episodes is not None:
         overrides["episodes"] = episodes
     config = agent_preset(preset, **overrides)
-    from imagine.devices import resolve_device
-
-    check_folder(config, out)  # errors before any progress bar is drawn
+    if seeds is None:
+        configs, folders = [config], [out]
+    else:
+        try:
+            chosen = sorted({int(x) for x in seeds.split(",")})
+        except ValueError:
+            raise ImagineError(f"--seeds expects comma-separated integers, got {seeds!r}") from None
+        configs = [dataclasses.replace(config, seed=s) for s in chosen]
+        folders = [out / f"seed-{s}" for s in chosen]
+    for c, folder in zip(configs, folders, strict=True):
+        check_folder(c, folder)  # errors before any progress bar is drawn
     torch_device = resolve_device(device)
     encoder = make_encoder(config, torch_device)
     start = time.perf_counter()
-    with Progress(TextColumn(f"{config.method} {config.task} seed {config.seed}"), BarColumn(),
+    label = f"seed {config.seed}" if seeds is None else f"seeds {seeds}"
+    done = [0] * len(configs)
+    with Progress(TextColumn(f"{config.method} {config.task} {label}"), BarColumn(),
                   MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
-        task_id = bar.add_task("episodes", total=config.episodes)
-        agent = train(config, out, on_episode=lambda e: bar.update(task_id, completed=e),
-                      threads=threads, encoder=encoder, device=str(torch_device))  # fmt: skip
+        task_id = bar.add_task("episodes", total=config.episodes * len(configs))
+
+        def on_episode(i: int, episode: int) -> None:
+            done[i] = episode
+            bar.update(task_id, completed=sum(done))
+
+        result = train_population(configs, folders, on_episode, threads=threads,
+                                  encoder=encoder, device=str(torch_device))  # fmt: skip
     seconds = time.perf_counter() - start
-    done = f"{agent.episode} episodes, {agent.t} time steps, {seconds:.0f} s"
-    console.print(f"trained {out}: {done}; next: imagine evaluate {out}")
+    for i, agent in enumerate(result.agents):
+        if agent is not None:
+            steps = f"{agent.episode} episodes, {agent.t} time steps"
+            console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}")
+    console.print(f"{seconds:.0f} s")
+    if result.failures:
+        raise NumericalError("; ".join(result.failures.values()))
 
 
 @app.command("evaluate")
