@@ -33,7 +33,7 @@ def assert_same_agent(a, b):
     {"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
 ])  # fmt: skip
 def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
-    settings = {"encoder": "oracle", "method": "augmented", "episodes": 150,
+    settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,
                 "imagination_start": 60, "log_every": 10, "accuracy_every": 50,
                 "checkpoint_every": 50, **overrides}  # fmt: skip
     seeds = (0, 1, 2)
@@ -45,6 +45,7 @@ def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overr
         train_population([config], [alone], threads=1)
         assert numbers(folder) == numbers(alone)
         assert_same_agent(load_agent(folder), load_agent(alone))
+    assert min(load_agent(f).t for f in together) >= 250, [load_agent(f).t for f in together]
     # the seeds really are different runs, each past I_start with imagination
     rows = [numbers(f)[-1] for f in together]
     assert len({r["charts/return"] for r in rows}) > 1
