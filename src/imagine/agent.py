@@ -58,10 +58,6 @@ class Agent:
     episode: int
     t: int
 
-    @property
-    def trains_model(self) -> bool:
-        return self.config.method == "augmented" or self.config.baseline_trains_m
-
 
 def saved_config(folder: Path) -> AgentConfig | None:
     """The config of the run in ``folder``, or None if there is none yet."""

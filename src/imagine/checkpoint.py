@@ -132,10 +132,3 @@ def optimizer_from_tensors(
     state_dict["state"] = state
     optimizer.load_state_dict(state_dict)
 
-
-def generator_state(generator: torch.Generator) -> torch.Tensor:
-    return generator.get_state()
-
-
-def set_generator_state(generator: torch.Generator, state: torch.Tensor) -> None:
-    generator.set_state(state.to(torch.uint8))

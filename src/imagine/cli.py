@@ -306,7 +306,7 @@ def evaluate_agent(
     n = episodes or agent.config.eval_episodes
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
     accuracy = None
-    if agent.trains_model:
+    if agent.config.trains_model:
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
     write_json(run / "evaluation.json", {"after_episodes": agent.episode, **result,
                                           "model_accuracy": accuracy})  # fmt: skip

@@ -269,6 +269,11 @@ class AgentConfig:
     eval_episodes: int = 1000
     """Greedy test episodes of `imagine evaluate`."""
 
+    @property
+    def trains_model(self) -> bool:
+        """Whether M is trained: always for augmented, for the baseline only on request."""
+        return self.method == "augmented" or self.baseline_trains_m
+
     def __post_init__(self) -> None:
         from imagine.env.rules import TASKS
 

@@ -169,7 +169,7 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
             agent.controller, agent.encoder, job.task, agent.config.eval_episodes, EVAL_SEED
         )
         accuracy = None
-        if agent.trains_model:
+        if agent.config.trains_model:
             accuracy = model_accuracy(agent.model, agent.encoder, job.task)
         evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
                       "budget": budget, "time_steps": agent.t, **evaluation,

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 import torch
 
 from imagine.controller import PopulationController
+from imagine.stacked import agent_normal
 from imagine.world_model import PopulationWorldModel
 
 FIELDS = ("z", "action", "next_z", "reward", "done")
@@ -38,11 +39,8 @@ def imagine_rollouts(
     ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), in the order they were imagined;
     None for agents without one."""
     P, D = mu.shape
-    noise = torch.zeros((P, breadth, D), device=mu.device)
-    for i, generator in enumerate(generators):
-        if generator is not None:
-            noise[i] = torch.randn((breadth, D), generator=generator, device=mu.device)
-    z = mu.unsqueeze(1) + sigma.unsqueeze(1) * noise
+    shape = (P, breadth, D)
+    z = agent_normal(mu.unsqueeze(1).expand(shape), sigma.unsqueeze(1).expand(shape), generators)
     going = torch.tensor([g is not None for g in generators], device=mu.device)
     alive = going.unsqueeze(1).expand(P, breadth).clone()
     steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values

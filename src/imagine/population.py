@@ -47,7 +47,7 @@ from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
 from imagine.imagination import imagine_rollouts
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
-from imagine.stacked import export_agent, import_agent
+from imagine.stacked import agent_normal, export_agent, import_agent
 from imagine.world_model import PopulationWorldModel, WorldModel
 
 FORMAT = "imagine-agent-3"
@@ -119,10 +119,6 @@ class Population:
         self._loss_sum: dict[str, torch.Tensor] = {}
         self._loss_count: dict[str, torch.Tensor] = {}
 
-    @property
-    def trains_model(self) -> bool:
-        return self.config.method == "augmented" or self.config.baseline_trains_m
-
     def epsilon(self, agent: int) -> float:
         c = self.config
         t = self.t[agent] if c.eps_time == "step" else self.episode[agent]
@@ -154,7 +150,7 @@ class Population:
             reward=torch.as_tensor(reward[live], dtype=torch.float32),
             done=torch.as_tensor(terminated[live], dtype=torch.float32),
         )  # fmt: skip
-        for _ in range(c.model_updates if self.trains_model else 0):
+        for _ in range(c.model_updates if c.trains_model else 0):
             losses = self.model.update(self.real.sample(c.model_batch, gens), gens)
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
@@ -203,14 +199,8 @@ class Population:
         """The states C learns from for a real batch: V's means, or draws from N(mu, sigma)."""
         if self.config.controller_input == "mu":
             return batch["mu"], batch["next_mu"]
-        out = []
-        for m, s in (("mu", "sigma"), ("next_mu", "next_sigma")):
-            noise = torch.zeros_like(batch[m])
-            for i, g in enumerate(gens):
-                if g is not None:
-                    noise[i] = torch.randn(noise.shape[1:], generator=g, device=self.device)
-            out.append(batch[m] + batch[s] * noise)
-        return out[0], out[1]
+        z = agent_normal(batch["mu"], batch["sigma"], gens)
+        return z, agent_normal(batch["next_mu"], batch["next_sigma"], gens)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
         """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""

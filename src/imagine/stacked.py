@@ -74,6 +74,18 @@ def aligned(x: torch.Tensor) -> torch.Tensor:
     return buffer[:, :block].view(P, N, width)
 
 
+def agent_normal(
+    mu: torch.Tensor, sigma: torch.Tensor, generators: Sequence[torch.Generator | None]
+) -> torch.Tensor:
+    """mu + sigma * noise for tensors (P, ...): agent i's standard normal noise is drawn from
+    ``generators[i]`` (zero for an agent whose generator is None: it draws nothing)."""
+    noise = torch.zeros_like(mu)
+    for i, generator in enumerate(generators):
+        if generator is not None:
+            noise[i] = torch.randn(mu.shape[1:], generator=generator, device=mu.device)
+    return mu + sigma * noise
+
+
 def agent_dropout(
     x: torch.Tensor, p: float, generators: Sequence[torch.Generator | None]
 ) -> torch.Tensor:

@@ -104,7 +104,7 @@ def _after_episode(
     """Agent i's episode just ended: accuracy, metrics row, checkpoint, stop at its budget."""
     config = population.configs[i]
     e = population.episode[i]
-    if population.trains_model and e % config.accuracy_every == 0:
+    if population.config.trains_model and e % config.accuracy_every == 0:
         _, model = population.networks(i)
         for key, value in model_accuracy(model, population.encoder, config.task).items():
             logger.record(f"model/{key}_accuracy", value)

@@ -30,7 +30,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from imagine.controller import mlp
-from imagine.stacked import PopulationAdam, StackedLinear, StackedMLP
+from imagine.stacked import PopulationAdam, StackedLinear, StackedMLP, agent_normal
 
 LOG_2PI = math.log(2 * math.pi)
 
@@ -234,16 +234,9 @@ class PopulationWorldModel(nn.Module):
         """One update of each network of every agent whose generator is given, on its batch
         (P, B, ...) from the real memory; latents are re-sampled from V's N(mu, sigma) (the
         paper's data augmentation). Returns the three losses per agent (P,)."""
-
-        def draw(mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
-            noise = torch.zeros_like(mu)
-            for i, generator in enumerate(generators):
-                if generator is not None:
-                    noise[i] = torch.randn(mu.shape[1:], generator=generator, device=mu.device)
-            return mu + sigma * noise
-
         agents = [i for i, g in enumerate(generators) if g is not None]
-        z, next_z = draw(batch["mu"], batch["sigma"]), draw(batch["next_mu"], batch["next_sigma"])
+        z = agent_normal(batch["mu"], batch["sigma"], generators)
+        next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
         mixture = mixture_from_heads(*self.heads(z, batch["action"], generators),
                                      self.latent_dim, self.min_sigma)  # fmt: skip
         reward = self.reward(next_z, generators).squeeze(-1)
