@@ -177,9 +177,16 @@ def vae_train(
 
 
 @vae_app.command("report")
-def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> None:
+def vae_report(
+    run: Annotated[Path, typer.Argument(help="A V run folder.")],
+    agent: Annotated[
+        Path | None, typer.Option(help="An agent run trained with this V: add M's accuracy.")
+    ] = None,
+) -> None:
     """Write reconstructions.png and traversals.png into RUN and print V's quality numbers:
-    test reconstruction loss and KL per image, latent-classifier accuracy on fresh images."""
+    test reconstruction loss and KL per image, each latent dimension's KL and whether it has
+    collapsed, the MLP and linear probes' accuracy on fresh images, and (--agent) the accuracy
+    of an agent's M in this V's latent space."""
     from rich.table import Table
 
     from imagine.vision_report import report_run
@@ -192,8 +199,22 @@ def vae_report(run: Annotated[Path, typer.Argument(help="A V run folder.")]) -> 
         "test reconstruction (BCE per image)", f"{report['test_reconstruction_per_image']:.1f}"
     )
     table.add_row("test KL per image (nats)", f"{report['test_kl_per_image']:.2f}")
-    for name, value in report["classifier_accuracy"].items():
-        table.add_row(f"classifier accuracy: {name}", f"{100 * value:.2f}%")
+    kl = " ".join(f"{x:.2f}" for x in report["kl_per_dimension"])
+    table.add_row("KL per dimension (nats)", kl)
+    table.add_row("posterior sigma per dimension",
+                  " ".join(f"{x:.2f}" for x in report["sigma_per_dimension"]))  # fmt: skip
+    collapsed = report["collapsed_dimensions"]
+    table.add_row("active dimensions (collapsed)",
+                  f"{report['active_dimensions']} ({', '.join(map(str, collapsed)) or 'none'})")
+    for probe in ("classifier", "linear_probe"):
+        for name, value in report[f"{probe}_accuracy"].items():
+            label = "MLP probe" if probe == "classifier" else "linear probe"
+            table.add_row(f"{label} accuracy: {name}", f"{100 * value:.2f}%")
+    if agent is not None:
+        from imagine.vision_report import agent_model_accuracy
+
+        for name, value in agent_model_accuracy(run, agent).items():
+            table.add_row(f"M accuracy ({agent}): {name}", f"{100 * value:.1f}%")
     Console().print(table)
     console.print(
         f"wrote {run / 'reconstructions.png'}, {run / 'traversals.png'}, {run / 'report.json'}"
@@ -377,7 +398,7 @@ def reproduce_study(
     seeds: Annotated[int, typer.Option(help="Agents per (task, method).")] = 5,
     budgets: Annotated[
         str, typer.Option(help="Comma-separated training-episode budgets.")
-    ] = "2000,3000,4000,5000,6000",
+    ] = "250,500,1000,1500,2000,3000,4000,5000,6000",
     backend: Annotated[str, typer.Option(help="local (processes) or ray.")] = "local",
     workers: Annotated[int, typer.Option(help="Runs at once (one torch thread each).")] = 2,
     address: Annotated[

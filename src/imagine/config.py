@@ -222,6 +222,15 @@ class AgentConfig:
     controller_input: str = "mu"
     """What C learns from for real transitions: mu (V's mean, what C acts on) or sample (a
     draw from N(mu, sigma), like the imagined states M produces). The paper does not say."""
+    model_latents: str = "sample"
+    """What M learns from and imagines in: sample (the paper: inputs and targets drawn from V's
+    N(mu, sigma) each time a batch is built, rollouts started from a draw of the current
+    posterior) or mu (V's means: M models the dynamics of the states C acts on, and rollouts
+    start from the current mu). With a V whose unused dimensions have collapsed to the prior
+    (sigma near 1), sample makes M learn and emit that noise."""
+    imagination_draw: str = "sample"
+    """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
+    then its Gaussian; the paper) or mode (the mean of the heaviest component)."""
     baseline_trains_m: bool = False
     """Train M in baseline runs too (only for its accuracy curve: C never uses it there)."""
     controller_lr: float = 1e-3
@@ -279,7 +288,8 @@ class AgentConfig:
 
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
                    "encoder": ("vae", "oracle"), "eps_time": ("step", "episode"),
-                   "controller_input": ("mu", "sample")}  # fmt: skip
+                   "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
+                   "imagination_draw": ("sample", "mode")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(

@@ -33,11 +33,13 @@ def imagine_rollouts(
     depth: int,
     eps: Sequence[float],
     generators: Sequence[torch.Generator | None],
+    draw: str = "sample",
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done)``
     of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
     ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), in the order they were imagined;
-    None for agents without one."""
+    None for agents without one. ``draw``: each next state a sample of M's mixture (the
+    paper), or its mode (the mean of the heaviest component)."""
     P, D = mu.shape
     shape = (P, breadth, D)
     z = agent_normal(mu.unsqueeze(1).expand(shape), sigma.unsqueeze(1).expand(shape), generators)
@@ -49,7 +51,7 @@ def imagine_rollouts(
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing)
-        next_z = model.sample(z, action, drawing)
+        next_z = model.mode(z, action) if draw == "mode" else model.sample(z, action, drawing)
         done = model.is_terminal(next_z)
         steps.append((z, action, next_z, model.predict_reward(next_z), done.float()))
         kept.append(alive.clone())

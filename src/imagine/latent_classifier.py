@@ -19,17 +19,22 @@ _CLASSES = (N_DIRECTIONS,) * N_CUBES + (N_CUBES,)
 
 
 class LatentClassifier(nn.Module):
-    """An MLP probe from a latent (N, latent_dim) to the macrostate (N, 4)."""
+    """An MLP probe from a latent (N, latent_dim) to the macrostate (N, 4); with ``hidden=0``
+    a linear probe (one softmax regression per factor), which reads only what V lays out
+    linearly."""
 
     def __init__(self, latent_dim: int = 8, hidden: int = 128) -> None:
         super().__init__()
         self.latent_dim = latent_dim
         self.register_buffer("mean", torch.zeros(latent_dim))
         self.register_buffer("scale", torch.ones(latent_dim))
-        self.body = nn.Sequential(
-            nn.Linear(latent_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
-        )
-        self.heads = nn.Linear(hidden, sum(_CLASSES))
+        if hidden > 0:
+            self.body: nn.Module = nn.Sequential(
+                nn.Linear(latent_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+            )
+        else:
+            self.body = nn.Identity()
+        self.heads = nn.Linear(hidden or latent_dim, sum(_CLASSES))
 
     def logits(self, z: torch.Tensor) -> list[torch.Tensor]:
         """Per-factor logits: three (N, 4) for the arrows, one (N, 3) for the hand."""

@@ -151,7 +151,8 @@ class Population:
             done=torch.as_tensor(terminated[live], dtype=torch.float32),
         )  # fmt: skip
         for _ in range(c.model_updates if c.trains_model else 0):
-            losses = self.model.update(self.real.sample(c.model_batch, gens), gens)
+            batch = self.real.sample(c.model_batch, gens)
+            losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
         for _ in range(c.n_real_updates):
@@ -211,9 +212,10 @@ class Population:
         if not imagining:
             return
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
+        sigma = self.sigma if c.model_latents == "sample" else torch.zeros_like(self.sigma)
         rollouts = imagine_rollouts(
-            self.model, self.controller, self.mu, self.sigma, c.imagination_breadth,
-            c.imagination_depth, eps, gens,
+            self.model, self.controller, self.mu, sigma, c.imagination_breadth,
+            c.imagination_depth, eps, gens, draw=c.imagination_draw,
         )  # fmt: skip
         for i in imagining:
             self.imaginary.add(i, **rollouts[i])

@@ -163,9 +163,96 @@ def claims(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def area_under_curve(budgets: list[int], success: list[float]) -> float:
+    """Mean success over the span of the budgets: the trapezoid area under the success curve
+    divided by the span (so 100 means 100% at every budget)."""
+    if len(budgets) < 2:
+        return float(success[0])
+    x, y = np.asarray(budgets, dtype=float), np.asarray(success, dtype=float)
+    area = float(((x[1:] - x[:-1]) * (y[1:] + y[:-1]) / 2).sum())
+    return area / (x[-1] - x[0])
+
+
+def first_reaching(budgets: list[int], success: list[float], level: float) -> int | None:
+    """The first budget at which ``success`` reaches ``level`` (None if it never does)."""
+    return next((b for b, x in zip(budgets, success, strict=True) if x >= level), None)
+
+
+def curve_summary(evaluations: list[dict[str, Any]], level: float = 90.0) -> list[dict[str, Any]]:
+    """One row per (task, method) over the learning curve of every seed: the area under the
+    success curve (mean and IQM with its 95% bootstrap interval over seeds), the episodes at
+    which the mean curve first reaches ``level`` % and the median over seeds of each seed's own."""
+    runs: dict[tuple[str, str], dict[int, dict[int, float]]] = defaultdict(dict)
+    for e in evaluations:
+        runs[(e["task"], e["method"])].setdefault(e["seed"], {})[int(e["budget"])] = (
+            100 * e["success"]
+        )
+    order = {"original": 0, "hard": 1}
+    out = []
+    for (task, method), seeds in sorted(runs.items(), key=lambda kv: (
+            order.get(kv[0][0], 2), kv[0][0], METHODS.index(kv[0][1]) if kv[0][1] in METHODS
+            else 2)):  # fmt: skip
+        budgets = sorted(set.intersection(*(set(c) for c in seeds.values())))
+        curves = np.array([[c[b] for b in budgets] for c in seeds.values()])
+        areas = np.array([area_under_curve(budgets, list(c)) for c in curves])
+        iqm, low, high = iqm_interval(areas)
+        own = [first_reaching(budgets, list(c), level) for c in curves]
+        reached = sorted(b for b in own if b is not None)
+        out.append({
+            "task": task, "method": method, "n": len(curves), "budgets": budgets,
+            "auc_mean": float(areas.mean()), "auc_iqm": iqm, "auc_low": low, "auc_high": high,
+            "episodes_to_level": first_reaching(budgets, list(curves.mean(0)), level),
+            "median_seed_episodes_to_level": (
+                float(np.median(reached)) if len(reached) * 2 > len(own) else None
+            ),
+            "seeds_reaching_level": len(reached), "level": level,
+        })  # fmt: skip
+    return out
+
+
+def curve_table(summary: list[dict[str, Any]]) -> str:
+    """The learning-curve summary as Markdown."""
+    lines = [
+        "| task | method | seeds | area under the success curve, mean | IQM [95% CI] | "
+        "episodes to 90% (mean curve) | episodes to 90% (median seed) | seeds reaching 90% |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in summary:
+        first = r["episodes_to_level"] or f"> {r['budgets'][-1]}"
+        median = r["median_seed_episodes_to_level"]
+        median = f"{median:.0f}" if median is not None else f"> {r['budgets'][-1]}"
+        lines.append(
+            f"| {r['task']} | {r['method']} | {r['n']} | {r['auc_mean']:.2f} | "
+            f"{r['auc_iqm']:.2f} [{r['auc_low']:.2f}, {r['auc_high']:.2f}] | {first} | "
+            f"{median} | {r['seeds_reaching_level']} of {r['n']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def where_paper_stood(rows: list[dict[str, Any]], budget: int = 2000) -> list[str]:
+    """For each task: the first budget at which our baseline's mean reaches the paper's
+    baseline mean at ``budget`` episodes."""
+    lines = []
+    for task in dict.fromkeys(r["task"] for r in rows):
+        paper = PAPER_TABLES.get(task, {}).get(budget)
+        ours = sorted((r["budget"], r["mean"]) for r in rows
+                      if r["task"] == task and r["method"] == "baseline")  # fmt: skip
+        if paper is None or not ours:
+            continue
+        at = first_reaching([b for b, _ in ours], [m for _, m in ours], paper[0])
+        where = f"by {at} episodes" if at is not None else "at none of our budgets"
+        lines.append(
+            f"- **{task}: where the paper's baseline stood at {budget} episodes** "
+            f"({paper[0]:.1f}%): our baseline's mean reaches it {where} (first budget "
+            f"{ours[0][0]}: {ours[0][1]:.1f}%)."
+        )
+    return lines
+
+
 def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
-    """Success % against training episodes, mean and std over seeds, per task (paper Fig. 4
-    left), with the paper's numbers dashed."""
+    """Success % against training episodes per task (paper Fig. 4 left): each method's IQM
+    over seeds with its 95% bootstrap interval as a band and its mean as dots; the paper's
+    mean (std) dashed."""
     from matplotlib.figure import Figure
 
     tasks = sorted({r["task"] for r in rows})
@@ -173,11 +260,13 @@ def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
     for i, task in enumerate(tasks):
         ax = fig.add_subplot(1, len(tasks), i + 1)
         for method, color in zip(METHODS, ("tab:blue", "tab:red"), strict=True):
-            mine = sorted((r["budget"], r["mean"], r["std"]) for r in rows
-                          if r["task"] == task and r["method"] == method)  # fmt: skip
+            mine = sorted((r["budget"], r["mean"], r["iqm"], r["iqm_low"], r["iqm_high"])
+                          for r in rows if r["task"] == task and r["method"] == method)  # fmt: skip
             if mine:
-                b, m, s = zip(*mine, strict=True)
-                ax.errorbar(b, m, yerr=s, color=color, marker="o", capsize=3, label=f"{method}")
+                b, m, iqm, low, high = zip(*mine, strict=True)
+                ax.plot(b, iqm, color=color, label=f"{method}, IQM and 95% CI")
+                ax.fill_between(b, low, high, color=color, alpha=0.2)
+                ax.plot(b, m, color=color, ls="none", marker="o", ms=3, label=f"{method}, mean")
             paper = PAPER_TABLES.get(task, {})
             if paper:
                 k = 0 if method == "baseline" else 2

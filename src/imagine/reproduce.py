@@ -25,10 +25,14 @@ from imagine.experiments import Job, LocalRunner, RayRunner, load_evaluations, s
 from imagine.report import (
     accuracy_figure,
     claims,
+    csv_text,
+    curve_summary,
+    curve_table,
     increase_figure,
     m_studies,
     success_figure,
     summarize,
+    where_paper_stood,
     write_tables,
 )
 
@@ -42,7 +46,9 @@ class StudyConfig:
     preset: str = "fast"
     tasks: tuple[str, ...] = ("original", "hard")
     seeds: int = 5
-    budgets: tuple[int, ...] = (2000, 3000, 4000, 5000, 6000)
+    budgets: tuple[int, ...] = (250, 500, 1000, 1500, 2000, 3000, 4000, 5000, 6000)
+    """Where every run is evaluated: the paper's 2000..6000 and the fine learning curve before
+    them, where the paper's baseline is weak."""
     backend: str = "local"
     workers: int = 2
     address: str | None = None
@@ -131,6 +137,11 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
     rows = summarize(evaluations)
     random = random_agents(config.tasks, out)
     tables = write_tables(out, rows, random)
+    curves = curve_summary(evaluations)
+    curves_md = curve_table(curves)
+    atomic_write_text(out / "tables" / "curves.md", curves_md)
+    atomic_write_text(out / "tables" / "curves.csv", csv_text(
+        [{k: v for k, v in r.items() if k != "budgets"} for r in curves]))  # fmt: skip
     figures = out / "figures"
     figures.mkdir(exist_ok=True)
     made = [success_figure(rows, figures / "success.png"),
@@ -173,8 +184,16 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
         "## What our numbers say about the paper's claims",
         "",
         *claims(rows),
+        *where_paper_stood(rows),
         *m_studies(evaluations),
         "",
+        "## Learning curves",
+        "",
+        "Every run evaluated at every budget; the area under the success curve is the mean "
+        "success over the span of the budgets (trapezoids), per seed, then mean and IQM with "
+        "its 95% bootstrap interval over seeds.",
+        "",
+        curves_md,
     ]
     for task, table in tables.items():
         name = "Table I (original task)" if task == "original" else "Table II (hard task)"

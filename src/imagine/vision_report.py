@@ -22,6 +22,11 @@ from imagine.dataset import DatasetConfig, synthesize
 from imagine.latent_classifier import LatentClassifier
 from imagine.vision import ConvVAE, encode_images, to_input
 
+ACTIVE_VARIANCE = 0.01
+"""A latent dimension is active when its mean moves across images: Var_x(E[z_d | x]) above
+this (the activity measure of Burda et al., 2016, Importance Weighted Autoencoders). A
+collapsed dimension keeps the prior's sigma near 1 and carries no information about the image."""
+
 
 def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
     """An observation, (3, 64, 64) in [0, 1] or uint8 (64, 64, 3), as its strips side by side."""
@@ -77,6 +82,32 @@ def traversals_png(vae: ConvVAE, image: np.ndarray, out: Path, steps: int = 7) -
     return out
 
 
+def latent_activity(mu: torch.Tensor, sigma: torch.Tensor) -> dict[str, Any]:
+    """Per latent dimension, over encoded images: the KL of the posterior from the prior
+    (nats per image), the variance of the mean across images (activity), the mean posterior
+    sigma; and which dimensions are collapsed (inactive)."""
+    kl = (-0.5 * (1 + 2 * sigma.log() - mu.square() - sigma.square())).mean(0)
+    activity = mu.var(0)
+    collapsed = [d for d in range(mu.shape[1]) if float(activity[d]) <= ACTIVE_VARIANCE]
+    return {
+        "kl_per_dimension": [round(float(x), 4) for x in kl],
+        "mean_variance_per_dimension": [round(float(x), 4) for x in activity],
+        "sigma_per_dimension": [round(float(x), 4) for x in sigma.mean(0)],
+        "collapsed_dimensions": collapsed,
+        "active_dimensions": mu.shape[1] - len(collapsed),
+    }
+
+
+def linear_probe_accuracy(
+    fit_mu: torch.Tensor, fit_states: np.ndarray, mu: torch.Tensor, states: np.ndarray
+) -> dict[str, float]:
+    """Accuracy on (mu, states) of a linear probe fitted on (fit_mu, fit_states): how much of
+    the macrostate V lays out linearly, which is what a small M or C reads most easily."""
+    probe = LatentClassifier(fit_mu.shape[1], hidden=0)
+    probe.fit(fit_mu, torch.as_tensor(fit_states), steps=1500, lr=3e-2)
+    return probe.accuracy(mu, torch.as_tensor(states))
+
+
 def fresh_test_set(made: DatasetConfig) -> tuple[np.ndarray, np.ndarray]:
     """Images V never saw (see :func:`~imagine.vision_training.fresh_images_config`)."""
     arrays = synthesize(made)
@@ -91,17 +122,22 @@ def vision_report(
     test_loss: dict[str, float],
     folder: Path,
     fresh: DatasetConfig,
+    fit: tuple[np.ndarray, np.ndarray],
 ) -> dict[str, Any]:
-    """Write the PNGs and report.json into ``folder``; return the numbers."""
+    """Write the PNGs and report.json into ``folder``; return the numbers. ``fit``: images and
+    macrostates the linear probe is fitted on (V's training images)."""
     images, states = fresh_test_set(fresh)
-    mu, _ = encode_images(vae, images)
+    mu, sigma = encode_images(vae, images)
     accuracy = classifier.accuracy(mu, torch.as_tensor(states))
+    fit_mu, _ = encode_images(vae, fit[0])
     report = {
         "test_reconstruction_per_image": test_loss["reconstruction"],
         "test_kl_per_image": test_loss["kl"],
         "test_loss_per_image": test_loss["loss"],
         "classifier_accuracy": accuracy,
+        "linear_probe_accuracy": linear_probe_accuracy(fit_mu, fit[1], mu, states),
         "classifier_test_images": len(images),
+        **latent_activity(mu, sigma),
     }
     reconstructions_png(vae, test_images, folder / "reconstructions.png")
     traversals_png(vae, test_images[0], folder / "traversals.png")
@@ -124,7 +160,30 @@ def report_run(run: Path) -> tuple[dict[str, Any], int]:
     classifier = load_classifier(run, config.latent_dim)
     data = make_data(config)
     test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
+    n = min(config.n_classifier_fit, len(data.train_images))
+    fit = (data.train_images[:n], data.train_macrostates[:n])
     report = vision_report(
-        vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config)
-    )
+        vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config),
+        fit,
+    )  # fmt: skip
     return report, epoch
+
+
+def agent_model_accuracy(run: Path, agent_run: Path) -> dict[str, float]:
+    """M's accuracy (:func:`~imagine.evaluate.model_accuracy`) of the agent in ``agent_run``,
+    which must have been trained with the V in ``run``; added to ``run``'s report.json."""
+    from imagine.agent import load_agent
+    from imagine.checkpoint import read_json
+    from imagine.errors import ConfigError
+    from imagine.evaluate import model_accuracy
+
+    agent = load_agent(agent_run)
+    if agent.config.vae_run is None or Path(agent.config.vae_run).resolve() != run.resolve():
+        raise ConfigError(f"{agent_run} was not trained with the V in {run}")
+    if not agent.config.trains_model:
+        raise ConfigError(f"{agent_run} is a baseline run: it has no trained M")
+    accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
+    report = read_json(run / "report.json", "V report")
+    report["model_accuracy"] = {"agent": str(agent_run), **accuracy}
+    write_json(run / "report.json", report)
+    return accuracy

@@ -228,15 +228,30 @@ class PopulationWorldModel(nn.Module):
     def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
         return self.terminal(z).squeeze(-1) > 0.0
 
+    @torch.no_grad()
+    def mode(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The mean of each row's heaviest component (P, N, D): the most likely next state."""
+        log_pi, mu, _ = self.heads(z, action)
+        shape = (*log_pi.shape, self.latent_dim)
+        k = log_pi.argmax(-1)[..., None, None].expand(*shape[:-2], 1, shape[-1])
+        return mu.view(shape).gather(-2, k).squeeze(-2)
+
     def update(
-        self, batch: dict[str, torch.Tensor], generators: Sequence[torch.Generator | None]
+        self,
+        batch: dict[str, torch.Tensor],
+        generators: Sequence[torch.Generator | None],
+        resample: bool = True,
     ) -> dict[str, torch.Tensor]:
         """One update of each network of every agent whose generator is given, on its batch
-        (P, B, ...) from the real memory; latents are re-sampled from V's N(mu, sigma) (the
-        paper's data augmentation). Returns the three losses per agent (P,)."""
+        (P, B, ...) from the real memory. With ``resample`` latents are drawn from V's
+        N(mu, sigma) (the paper's data augmentation); without, M learns from V's means.
+        Returns the three losses per agent (P,)."""
         agents = [i for i, g in enumerate(generators) if g is not None]
-        z = agent_normal(batch["mu"], batch["sigma"], generators)
-        next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
+        if resample:
+            z = agent_normal(batch["mu"], batch["sigma"], generators)
+            next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
+        else:
+            z, next_z = batch["mu"], batch["next_mu"]
         mixture = mixture_from_heads(*self.heads(z, batch["action"], generators),
                                      self.latent_dim, self.min_sigma)  # fmt: skip
         reward = self.reward(next_z, generators).squeeze(-1)

@@ -1,0 +1,135 @@
+"""The discriminating experiments of issue 14: why imagination does not pay with V, and what does.
+
+Each setting is one (method, agent-config overrides) pair on the `fast` preset, trained for both
+tasks with 5 seeds (one population per task and setting), evaluated with 1000 greedy test
+episodes at each budget, M's accuracy read by V's latent classifier. Prints one Markdown table:
+success per task and budget (mean (std) over seeds) and M's sampled next-state accuracy on the
+non-terminal transitions at the last budget.
+
+    .venv/bin/python scripts/imagination_study.py --vae runs/vae-fast --out runs/study14 \\
+        [--settings baseline,sample,mu,...] [--seeds 5] [--budgets 1000,2000] [--workers 2]
+
+Finished runs are read back; a stopped study resumes (it is `imagine reproduce`'s job machinery).
+Every setting spells out the fields it tests, so it means the same whatever the preset's defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imagine.experiments import Job, LocalRunner, load_evaluations
+
+PAPER_READING = {"model_latents": "sample", "imagination_draw": "sample",
+                 "imagination_start": 1000}  # fmt: skip
+SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
+    # name: (method, overrides of the fast preset)
+    "baseline": ("baseline", {}),
+    "baseline, 2 real C updates per step": ("baseline", {"n_real_updates": 2}),
+    "baseline, C on sampled inputs": ("baseline", {"controller_input": "sample"}),
+    "augmented (paper: M on samples of N(mu, sigma), sampled imagination)": (
+        "augmented",
+        PAPER_READING,
+    ),
+    "augmented, C on sampled inputs": (
+        "augmented",
+        {**PAPER_READING, "controller_input": "sample"},
+    ),
+    "augmented, imagined next state = M's mode": (
+        "augmented",
+        {**PAPER_READING, "imagination_draw": "mode"},
+    ),
+    "augmented, M x4 updates (8 x 128 per step)": (
+        "augmented",
+        {**PAPER_READING, "model_updates": 8},
+    ),
+    "augmented, M on V's means (mu)": ("augmented", {**PAPER_READING, "model_latents": "mu"}),
+    "augmented, M on mu, I_start 250": (
+        "augmented",
+        {**PAPER_READING, "model_latents": "mu", "imagination_start": 250},
+    ),
+}
+SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
+
+
+def jobs_of(setting: str, out: Path, tasks: list[str], seeds: int, budgets: tuple[int, ...],
+            vae: str) -> list[Job]:  # fmt: skip
+    method, overrides = SETTINGS[setting]
+    fields = tuple(sorted(overrides.items()))
+    return [
+        Job(
+            str(out / SHORT[setting] / f"{task}-{seed}"),
+            task,
+            method,
+            seed,
+            budgets,
+            vae_run=vae,
+            overrides=fields,
+        )
+        for task in tasks
+        for seed in range(seeds)
+    ]
+
+
+def cell(values: list[float]) -> str:
+    if not values:
+        return "-"
+    x = 100 * np.array(values)
+    std = f" ({x.std(ddof=1):.1f})" if len(x) > 1 else ""
+    return f"{x.mean():.1f}{std}" + ("" if len(x) >= 5 else f" [n={len(x)}]")
+
+
+def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
+          budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
+    head = [f"{t} {b}" for t in tasks for b in budgets] + [f"M sampled {t}" for t in tasks]
+    lines = ["| setting | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
+    for setting in settings:
+        rows = load_evaluations(jobs_of(setting, out, tasks, seeds, budgets, vae))
+        cells = [cell([r["success"] for r in rows if r["task"] == t and r["budget"] == b])
+                 for t in tasks for b in budgets]  # fmt: skip
+        for t in tasks:
+            accs = [
+                r["model_accuracy"]["transition_sampled"]
+                for r in rows
+                if r["task"] == t and r["budget"] == budgets[-1] and r["model_accuracy"]
+            ]
+            cells.append(cell(accs))
+        lines.append(f"| {setting} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vae", required=True)
+    parser.add_argument("--out", type=Path, default=Path("runs/study14"))
+    parser.add_argument(
+        "--settings",
+        default=",".join(SHORT.values()),
+        help="setting numbers (s0,s1,...) in the order to run them",
+    )
+    parser.add_argument("--tasks", default="original,hard")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--budgets", default="1000,2000")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--table-only", action="store_true")
+    args = parser.parse_args()
+    by_short = {v: k for k, v in SHORT.items()}
+    settings = [by_short[s] for s in args.settings.split(",")]
+    tasks = args.tasks.split(",")
+    budgets = tuple(int(b) for b in args.budgets.split(","))
+    if not args.table_only:
+        jobs = [j for s in settings for j in jobs_of(s, args.out, tasks, args.seeds, budgets,
+                                                     args.vae)]  # fmt: skip
+        LocalRunner(args.workers).run(
+            [j for j in jobs if not j.finished()],
+            on_start=lambda job: None,
+            on_done=lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
+        )
+    print(table(settings, args.out, tasks, args.seeds, budgets, args.vae))
+
+
+if __name__ == "__main__":
+    main()

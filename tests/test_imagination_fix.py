@@ -1,0 +1,134 @@
+"""Issue 14's levers: M on V's means, imagination from M's mode, V's latent activity, the
+linear probe and the learning-curve summary."""
+
+import numpy as np
+import pytest
+import torch
+
+from imagine.config import agent_preset
+from imagine.controller import Controller, PopulationController
+from imagine.errors import ConfigError
+from imagine.imagination import imagine_rollouts
+from imagine.latent_classifier import LatentClassifier
+from imagine.report import area_under_curve, curve_summary, first_reaching
+from imagine.vision_report import latent_activity
+from imagine.world_model import PopulationWorldModel, WorldModel
+
+
+def batch_of(n: int = 256, sigma: float = 0.5) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(0)
+    mu = torch.randn(n, 3, generator=g)
+    action = torch.randint(6, (n,), generator=g)
+    next_mu = mu + (action[:, None] == 0).float()
+    single = {"mu": mu, "sigma": torch.full((n, 3), sigma), "action": action,
+              "next_mu": next_mu, "next_sigma": torch.full((n, 3), sigma),
+              "reward": torch.zeros(n), "done": torch.zeros(n)}  # fmt: skip
+    return {k: v.unsqueeze(0) for k, v in single.items()}
+
+
+def test_m_on_means_ignores_the_posterior_sigma():
+    """model_latents=mu: M learns from V's means, so sigma (noise in collapsed dimensions)
+    cannot reach its targets; with re-sampling it does."""
+    losses = {}
+    for sigma in (0.01, 3.0):
+        for resample in (False, True):
+            torch.manual_seed(0)
+            model = PopulationWorldModel([WorldModel(3, dropout=0.0)])
+            losses[(sigma, resample)] = model.update(
+                batch_of(sigma=sigma), [torch.Generator().manual_seed(1)], resample=resample
+            )["mdn"]
+    assert torch.equal(losses[(0.01, False)], losses[(3.0, False)])
+    assert not torch.equal(losses[(0.01, True)], losses[(3.0, True)])
+
+
+def test_m_learns_a_known_transition_from_means_to_a_sharp_mode():
+    torch.manual_seed(0)
+    model = PopulationWorldModel([WorldModel(3, dropout=0.0)])
+    batch, g = batch_of(sigma=0.9), [torch.Generator().manual_seed(1)]
+    first = model.update(batch, g, resample=False)["mdn"]
+    for _ in range(300):
+        last = model.update(batch, g, resample=False)["mdn"]
+    assert float(last[0]) < float(first[0]) - 3
+    predicted = model.mode(batch["mu"][:, :64], batch["action"][:, :64])
+    assert (predicted - batch["next_mu"][:, :64]).abs().mean() < 0.15
+
+
+def test_population_mode_is_the_single_agent_most_likely_state():
+    torch.manual_seed(0)
+    models = [WorldModel(2, dropout=0.0) for _ in range(2)]
+    population = PopulationWorldModel(models)
+    z, a = torch.randn(2, 5, 2), torch.randint(6, (2, 5))
+    mode = population.mode(z, a)
+    for i in range(2):
+        assert torch.allclose(mode[i], models[i].mdn.most_likely(z[i], a[i]), atol=1e-6)
+
+
+def test_rollouts_from_the_mean_with_the_mode_are_deterministic():
+    torch.manual_seed(0)
+    model = PopulationWorldModel([WorldModel(4, dropout=0.0)])
+    controller = PopulationController([Controller(4)])
+    mu, sigma = torch.randn(1, 4), torch.zeros(1, 4)
+    runs = [imagine_rollouts(model, controller, mu, sigma, 2, 3, [0.0],
+                             [torch.Generator().manual_seed(s)], draw="mode")[0]
+            for s in (0, 1)]  # fmt: skip
+    first = runs[0]
+    assert torch.equal(first["z"][0], mu[0]) and torch.equal(first["z"][1], mu[0])
+    assert torch.equal(
+        first["next_z"][0], model.mode(mu.view(1, 1, 4), first["action"][:1].view(1, 1))[0, 0]
+    )
+    assert all(torch.equal(runs[0][k], runs[1][k]) for k in first)
+
+
+def test_bad_imagination_choices_are_refused():
+    with pytest.raises(ConfigError, match="model_latents must be one of sample, mu"):
+        agent_preset("fast", model_latents="means")
+    with pytest.raises(ConfigError, match="imagination_draw must be one of sample, mode"):
+        agent_preset("fast", imagination_draw="max")
+
+
+def test_latent_activity_finds_the_collapsed_dimensions():
+    g = torch.Generator().manual_seed(0)
+    mu = torch.randn(1000, 4, generator=g) * torch.tensor([1.0, 0.5, 0.05, 0.01])
+    sigma = torch.tensor([0.1, 0.1, 0.9, 1.0]).expand(1000, 4)
+    activity = latent_activity(mu, sigma)
+    assert activity["collapsed_dimensions"] == [2, 3]
+    assert activity["active_dimensions"] == 2
+    kl = activity["kl_per_dimension"]
+    assert kl[0] > 1.0 and kl[3] < 0.01
+    assert kl[0] == pytest.approx(
+        float((-0.5 * (1 + 2 * np.log(0.1) - mu[:, 0].square() - 0.01)).mean()), rel=1e-3
+    )
+
+
+def test_a_linear_probe_cannot_read_what_an_mlp_can():
+    """Factor 'hand' laid out on a circle's radius: not linearly separable, an MLP reads it."""
+    g = torch.Generator().manual_seed(0)
+    states = torch.zeros(3000, 4, dtype=torch.int64)
+    states[:, 3] = torch.randint(3, (3000,), generator=g)
+    angle = torch.rand(3000, generator=g) * 2 * torch.pi
+    radius = 1.0 + states[:, 3].float()
+    z = torch.stack([radius * angle.cos(), radius * angle.sin()], -1)
+    linear, mlp = LatentClassifier(2, hidden=0), LatentClassifier(2)
+    linear.fit(z, states, steps=500, lr=3e-2)
+    mlp.fit(z, states, steps=800)
+    assert mlp.accuracy(z, states)["hand"] > 0.97
+    assert linear.accuracy(z, states)["hand"] < 0.6
+
+
+def test_learning_curve_summary():
+    assert area_under_curve([0, 100, 300], [0.0, 50.0, 50.0]) == pytest.approx(
+        (0.5 * 100 * 50 + 200 * 50) / 300
+    )
+    assert first_reaching([250, 500, 1000], [50.0, 91.0, 80.0], 90.0) == 500
+    assert first_reaching([250, 500], [50.0, 60.0], 90.0) is None
+    evaluations = [
+        {"task": "hard", "method": m, "seed": s, "budget": b, "success": x / 100}
+        for m, curve in (("baseline", (40, 80, 95)), ("augmented", (60, 95, 99)))
+        for s in range(3)
+        for b, x in zip((250, 500, 1000), curve, strict=True)
+    ]
+    rows = {r["method"]: r for r in curve_summary(evaluations)}
+    assert rows["baseline"]["episodes_to_level"] == 1000
+    assert rows["augmented"]["episodes_to_level"] == 500
+    assert rows["augmented"]["auc_mean"] > rows["baseline"]["auc_mean"]
+    assert rows["baseline"]["seeds_reaching_level"] == 3
