@@ -121,8 +121,9 @@ def main() -> None:
     tasks = args.tasks.split(",")
     budgets = tuple(int(b) for b in args.budgets.split(","))
     if not args.table_only:
-        jobs = [j for s in settings for j in jobs_of(s, args.out, tasks, args.seeds, budgets,
-                                                     args.vae)]  # fmt: skip
+        # task-major: every setting of the first task, then of the next
+        jobs = [j for t in tasks for s in settings
+                for j in jobs_of(s, args.out, [t], args.seeds, budgets, args.vae)]  # fmt: skip
         LocalRunner(args.workers).run(
             [j for j in jobs if not j.finished()],
             on_start=lambda job: None,

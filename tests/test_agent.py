@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from imagine.agent import load_agent, train
-from imagine.config import agent_preset
+from imagine.config import agent_preset, check_imagines
 from imagine.env.rules import REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
@@ -73,7 +73,8 @@ def test_stopped_and_resumed_continues_where_it_was(tmp_path):
 
 def test_bad_agent_configs():
     with pytest.raises(ConfigError, match="beyond the episode budget"):
-        agent_preset("fast", episodes=500, imagination_start=1000)
+        check_imagines(agent_preset("fast", episodes=500, imagination_start=1000))
+    check_imagines(agent_preset("fast", episodes=500, imagination_start=1000, method="baseline"))
     with pytest.raises(ConfigError, match=r"agent\.method must be one of"):
         agent_preset("fast", method="dyna")
     with pytest.raises(ConfigError, match="did you mean 'imagination_depth'"):

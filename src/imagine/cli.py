@@ -260,7 +260,7 @@ def train_agent(
     import dataclasses
 
     from imagine.agent import check_folder, make_encoder
-    from imagine.config import agent_preset, load_yaml, parse_assignments
+    from imagine.config import agent_preset, check_imagines, load_yaml, parse_assignments
     from imagine.devices import resolve_device
     from imagine.errors import NumericalError
     from imagine.training import train_population
@@ -272,7 +272,7 @@ def train_agent(
                        "vae_run": None if vae is None else str(vae)}  # fmt: skip
     if episodes is not None:
         overrides["episodes"] = episodes
-    config = agent_preset(preset, **overrides)
+    config = check_imagines(agent_preset(preset, **overrides))
     if seeds is None:
         configs, folders = [config], [out]
     else:

@@ -319,13 +319,19 @@ class AgentConfig:
             )
         if self.imaginary_batch > self.imaginary_memory:
             raise ConfigError("agent.imaginary_batch must fit in agent.imaginary_memory")
-        if self.method == "augmented" and self.imagination_start >= self.episodes:
-            raise ConfigError(
-                f"agent.imagination_start ({self.imagination_start}) is beyond the episode "
-                f"budget ({self.episodes}): the augmented agent would never imagine"
-            )
         if self.oracle_sigma <= 0:
             raise ConfigError("agent.oracle_sigma must be positive")
+
+
+def check_imagines(config: AgentConfig) -> AgentConfig:
+    """An error if an augmented run would end before its I_start. Asked of a whole run (`imagine
+    train`, a study's largest budget), not of a config trained to an early evaluation point."""
+    if config.method == "augmented" and config.imagination_start >= config.episodes:
+        raise ConfigError(
+            f"agent.imagination_start ({config.imagination_start}) is beyond the episode "
+            f"budget ({config.episodes}): the augmented agent would never imagine"
+        )
+    return config
 
 
 AGENT_PRESETS: dict[str, dict[str, Any]] = {

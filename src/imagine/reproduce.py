@@ -19,7 +19,13 @@ from typing import Any
 import yaml
 
 from imagine.checkpoint import atomic_write_text, read_json, write_json
-from imagine.config import AGENT_PRESETS, VISION_PRESETS, agent_preset, check_preset
+from imagine.config import (
+    AGENT_PRESETS,
+    VISION_PRESETS,
+    agent_preset,
+    check_imagines,
+    check_preset,
+)
 from imagine.errors import ConfigError
 from imagine.experiments import Job, LocalRunner, RayRunner, load_evaluations, study_jobs
 from imagine.report import (
@@ -85,7 +91,8 @@ class StudyConfig:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
         # every budget's agent config must be valid before anything runs
         for budget in self.budgets:
-            agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
+            agent = agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
+        check_imagines(agent)  # the runs are evaluated early, but must imagine by the last budget
 
 
 def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -> str | None:

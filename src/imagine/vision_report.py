@@ -161,7 +161,7 @@ def report_run(run: Path) -> tuple[dict[str, Any], int]:
     data = make_data(config)
     test_loss = evaluate_vae(vae, data.test_images, config.beta, config.seed + 1)
     n = min(config.n_classifier_fit, len(data.train_images))
-    fit = (data.train_images[:n], data.train_macrostates[:n])
+    fit = (data.train_images[:n], data.train_states[:n])
     report = vision_report(
         vae, classifier, config, data.test_images, test_loss, run, fresh_images_config(config),
         fit,
