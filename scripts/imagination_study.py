@@ -51,6 +51,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**PAPER_READING, "model_latents": "mu", "imagination_start": 250},
     ),
+    "augmented, M on mu, epsilon 0.2 in imagination": (
+        "augmented",
+        {**PAPER_READING, "model_latents": "mu", "imagination_epsilon": 0.2},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

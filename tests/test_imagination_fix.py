@@ -84,6 +84,8 @@ def test_bad_imagination_choices_are_refused():
         agent_preset("fast", model_latents="means")
     with pytest.raises(ConfigError, match="imagination_draw must be one of sample, mode"):
         agent_preset("fast", imagination_draw="max")
+    with pytest.raises(ConfigError, match="imagination_epsilon must be in"):
+        agent_preset("fast", imagination_epsilon=1.5)
 
 
 def test_latent_activity_finds_the_collapsed_dimensions():

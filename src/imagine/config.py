@@ -231,6 +231,9 @@ class AgentConfig:
     imagination_draw: str = "sample"
     """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
     then its Gaussian; the paper) or mode (the mean of the heaviest component)."""
+    imagination_epsilon: float = -1.0
+    """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
+    paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
     baseline_trains_m: bool = False
     """Train M in baseline runs too (only for its accuracy curve: C never uses it there)."""
     controller_lr: float = 1e-3
@@ -309,6 +312,10 @@ class AgentConfig:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"agent.gamma must be in [0, 1], got {self.gamma}")
+        if not (self.imagination_epsilon == -1.0 or 0.0 <= self.imagination_epsilon <= 1.0):
+            raise ConfigError(
+                f"agent.imagination_epsilon must be in [0, 1] or -1, got {self.imagination_epsilon}"
+            )
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"agent.dropout must be in [0, 1), got {self.dropout}")
         if not 0.0 <= self.eps_min <= self.eps_max <= 1.0:

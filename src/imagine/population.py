@@ -213,6 +213,8 @@ class Population:
             return
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
         sigma = self.sigma if c.model_latents == "sample" else torch.zeros_like(self.sigma)
+        if c.imagination_epsilon >= 0:
+            eps = [c.imagination_epsilon] * self.size
         rollouts = imagine_rollouts(
             self.model, self.controller, self.mu, sigma, c.imagination_breadth,
             c.imagination_depth, eps, gens, draw=c.imagination_draw,
