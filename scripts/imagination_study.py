@@ -55,6 +55,16 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**PAPER_READING, "model_latents": "mu", "imagination_epsilon": 0.2},
     ),
+    "augmented, M on mu, change of state, mode, epsilon 0.2 in imagination": (
+        "augmented",
+        {
+            **PAPER_READING,
+            "model_latents": "mu",
+            "model_residual": True,
+            "imagination_draw": "mode",
+            "imagination_epsilon": 0.2,
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -228,6 +228,11 @@ class AgentConfig:
     posterior) or mu (V's means: M models the dynamics of the states C acts on, and rollouts
     start from the current mu). With a V whose unused dimensions have collapsed to the prior
     (sigma near 1), sample makes M learn and emit that noise."""
+    model_residual: bool = False
+    """M's mixture means as the current state plus a predicted change (mu_k = z + head_k, as
+    PETS and MBPO predict state differences) instead of the next state itself (the paper). An
+    action rotates one cube, so most of the state stays as it is: a residual M gets that for
+    free and learns only the change."""
     imagination_draw: str = "sample"
     """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
     then its Gaussian; the paper) or mode (the mean of the heaviest component)."""

@@ -68,7 +68,8 @@ def new_networks(config: AgentConfig, latent_dim: int) -> tuple[Controller, Worl
     torch.manual_seed(config.seed)
     controller = Controller(latent_dim)
     model = WorldModel(latent_dim, n_components=config.n_components, dropout=config.dropout,
-                       reward_hidden=config.reward_hidden)  # fmt: skip
+                       reward_hidden=config.reward_hidden,
+                       residual=config.model_residual)  # fmt: skip
     return controller, model
 
 

@@ -45,13 +45,19 @@ class Mixture(NamedTuple):
 
 
 def mixture_from_heads(
-    pi: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, latent_dim: int, min_sigma: float
+    pi: torch.Tensor,
+    mu: torch.Tensor,
+    sigma: torch.Tensor,
+    latent_dim: int,
+    min_sigma: float,
+    z: torch.Tensor | None = None,
 ) -> Mixture:
-    """The mixture from the three heads' outputs (..., K), (..., K*D), (..., K*D)."""
+    """The mixture from the three heads' outputs (..., K), (..., K*D), (..., K*D). With the
+    current state ``z`` (..., D) given, the mean head predicts each component's change of state
+    (residual M): mu_k = z + head_k."""
     shape = (*pi.shape, latent_dim)
-    return Mixture(
-        F.log_softmax(pi, -1), mu.view(shape), F.softplus(sigma).view(shape) + min_sigma
-    )
+    means = mu.view(shape) if z is None else z.unsqueeze(-2) + mu.view(shape)
+    return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma)
 
 
 def sample_mixture(m: Mixture, generator: torch.Generator) -> torch.Tensor:
@@ -83,10 +89,11 @@ class MDN(nn.Module):
         layers: int = 3,
         dropout: float = 0.5,
         min_sigma: float = 1e-3,
+        residual: bool = False,
     ) -> None:
         super().__init__()
         self.latent_dim, self.n_actions, self.n_components = latent_dim, n_actions, n_components
-        self.min_sigma = min_sigma
+        self.min_sigma, self.residual = min_sigma, residual
         self.body = mlp([latent_dim + n_actions, *[hidden] * layers], dropout)
         self.body.append(nn.ReLU())
         if dropout > 0:
@@ -99,7 +106,8 @@ class MDN(nn.Module):
         """The mixture for latents (N, D) and integer actions (N,)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
         return mixture_from_heads(self.pi_head(h), self.mu_head(h), self.sigma_head(h),
-                                  self.latent_dim, self.min_sigma)  # fmt: skip
+                                  self.latent_dim, self.min_sigma,
+                                  z if self.residual else None)  # fmt: skip
 
     def loss(self, z: torch.Tensor, action: torch.Tensor, next_z: torch.Tensor) -> torch.Tensor:
         return mixture_nll(self(z, action), next_z).mean()
@@ -167,10 +175,11 @@ class WorldModel(nn.Module):
         n_components: int = 5,
         dropout: float = 0.5,
         reward_hidden: int = 512,
+        residual: bool = False,
     ) -> None:
         super().__init__()
         self.dropout = dropout
-        self.mdn = MDN(latent_dim, n_actions, n_components, dropout=dropout)
+        self.mdn = MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual)
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=dropout)
         self.terminal = TerminalNet(latent_dim, dropout=dropout)
 
@@ -184,7 +193,7 @@ class PopulationWorldModel(nn.Module):
         super().__init__()
         first = models[0]
         self.latent_dim, self.n_actions = first.mdn.latent_dim, first.mdn.n_actions
-        self.min_sigma = first.mdn.min_sigma
+        self.min_sigma, self.residual = first.mdn.min_sigma, first.mdn.residual
         p = first.dropout
         # registered in WorldModel's parameter order (export_agent relies on it)
         self.mdn_body = StackedMLP([m.mdn.body for m in models], p, activate_last=True)
@@ -216,7 +225,8 @@ class PopulationWorldModel(nn.Module):
         out = torch.zeros_like(z)
         for i, generator in enumerate(generators):
             if generator is not None:
-                m = mixture_from_heads(*(h[i] for h in heads), self.latent_dim, self.min_sigma)
+                m = mixture_from_heads(*(h[i] for h in heads), self.latent_dim, self.min_sigma,
+                                       z[i] if self.residual else None)  # fmt: skip
                 out[i] = sample_mixture(m, generator)
         return out
 
@@ -234,7 +244,8 @@ class PopulationWorldModel(nn.Module):
         log_pi, mu, _ = self.heads(z, action)
         shape = (*log_pi.shape, self.latent_dim)
         k = log_pi.argmax(-1)[..., None, None].expand(*shape[:-2], 1, shape[-1])
-        return mu.view(shape).gather(-2, k).squeeze(-2)
+        mode = mu.view(shape).gather(-2, k).squeeze(-2)
+        return z + mode if self.residual else mode
 
     def update(
         self,
@@ -253,7 +264,8 @@ class PopulationWorldModel(nn.Module):
         else:
             z, next_z = batch["mu"], batch["next_mu"]
         mixture = mixture_from_heads(*self.heads(z, batch["action"], generators),
-                                     self.latent_dim, self.min_sigma)  # fmt: skip
+                                     self.latent_dim, self.min_sigma,
+                                     z if self.residual else None)  # fmt: skip
         reward = self.reward(next_z, generators).squeeze(-1)
         terminal = self.terminal(next_z, generators).squeeze(-1)
         losses = {

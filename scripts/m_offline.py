@@ -1,0 +1,100 @@
+"""Train fresh world models M offline on the real memory of an agent run and compare variants:
+the cheap way to tell which of M's settings makes it right on V's latents (issue 14).
+
+    .venv/bin/python scripts/m_offline.py RUN [RUN ...] [--updates 4000] [--batch 128]
+
+For each run (its last checkpoint: real memory M_R, V, task) and each variant (M's latents:
+samples of N(mu, sigma) or V's means; M's mean head: the next state or its change), trains a
+fresh M (seed 0, no dropout) with ``--updates`` Adam steps on batches from that memory and
+prints M's accuracy as `imagine evaluate` measures it: the most likely next state on the
+non-terminal transitions, a sample of M on the same, and the most likely next state from the
+terminal states M never trained on (generalization).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from imagine.agent import load_agent
+from imagine.checkpoint import load_tensors
+from imagine.evaluate import model_accuracy
+from imagine.memory import ReplayMemory, real_fields
+from imagine.world_model import PopulationWorldModel, WorldModel
+
+VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head)
+    "samples, next state (paper)": (True, False),
+    "samples, change of state": (True, True),
+    "means, next state": (False, False),
+    "means, change of state": (False, True),
+}
+
+
+def real_memory(run: Path, latent_dim: int) -> ReplayMemory:
+    tensors = load_tensors(run / "agent.safetensors", "agent checkpoint")
+    size = int(tensors["real._counters"][1])
+    memory = ReplayMemory(size, real_fields(latent_dim))
+    memory.load_state_dict(tensors, "real")
+    return memory
+
+
+def train_m(memory: ReplayMemory, latent_dim: int, resample: bool, residual: bool,
+            updates: int, batch: int) -> WorldModel:  # fmt: skip
+    torch.manual_seed(0)
+    model = WorldModel(latent_dim, dropout=0.0, reward_hidden=128, residual=residual)
+    population = PopulationWorldModel([model])
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(updates):
+        population.update(memory.sample(batch, [generator]), [generator], resample=resample)
+    from imagine.stacked import export_agent
+
+    return export_agent(population, 0, model).eval()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--updates", type=int, default=4000)
+    parser.add_argument("--batch", type=int, default=128)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    results: dict[str, list[tuple[float, float, float]]] = {v: [] for v in VARIANTS}
+    for run in args.runs:
+        agent = load_agent(run)
+        memory = real_memory(run, agent.encoder.latent_dim)
+        print(f"{run}: {agent.episode} episodes, {len(memory)} real transitions", flush=True)
+        for name, (resample, residual) in VARIANTS.items():
+            model = train_m(memory, agent.encoder.latent_dim, resample, residual, args.updates,
+                            args.batch)  # fmt: skip
+            a = model_accuracy(model, agent.encoder, agent.config.task)
+            general = generalization_accuracy(a, agent.config.task)
+            results[name].append((a["transition_nonterminal"], a["transition_sampled"], general))
+            print(f"  {name}: most likely {a['transition_nonterminal']:.1%}, sampled "
+                  f"{a['transition_sampled']:.1%}, from terminal states {general:.1%}",
+                  flush=True)  # fmt: skip
+    print(f"\n| M trained offline ({args.updates} x {args.batch}) | most likely, non-terminal | "
+          "sampled, non-terminal | most likely, from terminal states |")  # fmt: skip
+    print("| --- | --- | --- | --- |")
+    for name, rows in results.items():
+        x = 100 * np.array(rows)
+        cells = [f"{m:.1f} ({s:.1f})" for m, s in zip(x.mean(0), x.std(0, ddof=1) if len(x) > 1
+                                                       else np.zeros(3), strict=True)]  # fmt: skip
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+
+def generalization_accuracy(accuracy: dict[str, float], task: str) -> float:
+    """Most-likely accuracy over the transitions from terminal states, from the overall and the
+    non-terminal accuracies (the 192 x 6 transitions split into the two)."""
+    from imagine.env.rules import all_macrostates, is_terminal
+
+    terminal = int(is_terminal(all_macrostates(), task).sum()) * 6
+    total = 192 * 6
+    right = accuracy["transition"] * total - accuracy["transition_nonterminal"] * (total - terminal)
+    return right / terminal
+
+
+if __name__ == "__main__":
+    main()
