@@ -65,6 +65,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "imagination_epsilon": 0.2,
         },
     ),
+    "augmented, change of state, imagined next state = M's mode": (
+        "augmented",
+        {**PAPER_READING, "model_residual": True, "imagination_draw": "mode"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
@@ -96,21 +100,48 @@ def cell(values: list[float]) -> str:
     return f"{x.mean():.1f}{std}" + ("" if len(x) >= 5 else f" [n={len(x)}]")
 
 
+def imagined(job: Job, budget: int) -> dict[str, float] | None:
+    """The imagined-transition accuracy of a finished augmented run at its last checkpoint
+    (cached in imagined-NNNNN.json)."""
+    from imagine.agent import load_agent
+    from imagine.checkpoint import read_json, write_json
+    from imagine.evaluate import imagined_accuracy
+
+    path = Path(job.folder) / f"imagined-{budget:05d}.json"
+    if path.is_file():
+        return read_json(path, "imagined accuracy")
+    if job.method != "augmented" or not job.evaluation_path(budget).is_file():
+        return None
+    agent = load_agent(job.folder)
+    if agent.episode != budget:
+        return None
+    result = imagined_accuracy(agent)
+    write_json(path, result)
+    return result
+
+
 def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
           budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
+    last = budgets[-1]
     head = [f"{t} {b}" for t in tasks for b in budgets] + [f"M sampled {t}" for t in tasks]
+    head += [f"imagined right {t} (state / reward)" for t in tasks]
     lines = ["| setting | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
     for setting in settings:
-        rows = load_evaluations(jobs_of(setting, out, tasks, seeds, budgets, vae))
+        jobs = jobs_of(setting, out, tasks, seeds, budgets, vae)
+        rows = load_evaluations(jobs)
         cells = [cell([r["success"] for r in rows if r["task"] == t and r["budget"] == b])
                  for t in tasks for b in budgets]  # fmt: skip
         for t in tasks:
             accs = [
                 r["model_accuracy"]["transition_sampled"]
                 for r in rows
-                if r["task"] == t and r["budget"] == budgets[-1] and r["model_accuracy"]
+                if r["task"] == t and r["budget"] == last and r["model_accuracy"]
             ]
             cells.append(cell(accs))
+        for t in tasks:
+            found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
+            both = [cell([x[k] for x in found]) for k in ("state", "reward")]
+            cells.append(" / ".join(both) if found else "-")
         lines.append(f"| {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -8,6 +8,7 @@ import torch
 from imagine.config import agent_preset
 from imagine.controller import Controller, PopulationController
 from imagine.errors import ConfigError
+from imagine.evaluate import imagined_accuracy
 from imagine.imagination import imagine_rollouts
 from imagine.latent_classifier import LatentClassifier
 from imagine.report import area_under_curve, curve_summary, first_reaching
@@ -168,3 +169,57 @@ def test_residual_m_carries_unchanged_factors_to_states_it_never_saw():
         truth = far + (action == 0).float().unsqueeze(-1)
         errors[residual] = float((model.mode(far, action) - truth).abs().mean())
     assert errors[True] < 0.25 and errors[False] > 2 * errors[True]
+
+
+class RuleModel:
+    """An M in population form that knows the rules (the oracle embedding's dynamics), or,
+    with ``frozen``, one that predicts that nothing changes."""
+
+    def __init__(self, encoder, task: str, frozen: bool = False) -> None:
+        self.encoder, self.task, self.frozen = encoder, task, frozen
+
+    def _next(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        from imagine.encoder import factored_embedding
+        from imagine.env.rules import apply_actions
+
+        if self.frozen:
+            return z.clone()
+        states = self.encoder.classify(z.reshape(-1, z.shape[-1])).numpy()
+        nxt = apply_actions(states, action.reshape(-1).numpy())
+        return factored_embedding(nxt).view(z.shape)
+
+    def sample(self, z, action, generators):
+        return self._next(z, action)
+
+    def mode(self, z, action):
+        return self._next(z, action)
+
+    def _states(self, z):
+        return self.encoder.classify(z.reshape(-1, z.shape[-1])).numpy()
+
+    def is_terminal(self, z):
+        from imagine.env.rules import is_terminal
+
+        return torch.as_tensor(is_terminal(self._states(z), self.task)).view(z.shape[:-1])
+
+    def predict_reward(self, z):
+        from imagine.env.rules import rewards
+
+        return torch.as_tensor(rewards(self._states(z), self.task), dtype=torch.float32).view(
+            z.shape[:-1]
+        )
+
+
+def test_imagined_accuracy_judges_imagined_transitions_by_the_rules():
+    from imagine.agent import Agent
+    from imagine.encoder import OracleEncoder
+
+    config = agent_preset("smoke", task="hard", encoder="oracle", imagination_draw="mode")
+    encoder = OracleEncoder()
+    torch.manual_seed(0)
+    agent = Agent(config, encoder, Controller(8), WorldModel(8), 0, 0)
+    exact = imagined_accuracy(agent, starts=20, model=RuleModel(encoder, "hard"))
+    assert exact["state"] == exact["reward"] == exact["terminal"] == 1.0
+    assert exact["transitions"] >= 20 * config.imagination_breadth
+    frozen = imagined_accuracy(agent, starts=20, model=RuleModel(encoder, "hard", frozen=True))
+    assert frozen["state"] == 0.0 and frozen["first_step"] == 0.0

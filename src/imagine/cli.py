@@ -317,20 +317,23 @@ def evaluate_agent(
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the test episodes.")] = 1_000_000,
 ) -> None:
-    """Run greedy test episodes (batched) and print the success rate with its 95% interval, and
-    M's accuracy over all 192 x 6 true transitions."""
+    """Run greedy test episodes (batched) and print the success rate with its 95% interval, M's
+    accuracy over all 192 x 6 true transitions, and how right the transitions are that M
+    imagines for C (judged by V's latent classifier)."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
-    from imagine.evaluate import greedy_success, model_accuracy
+    from imagine.evaluate import greedy_success, imagined_accuracy, model_accuracy
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
-    accuracy = None
+    accuracy = imagined = None
     if agent.config.trains_model:
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
+        imagined = imagined_accuracy(agent)
     write_json(run / "evaluation.json", {"after_episodes": agent.episode, **result,
-                                          "model_accuracy": accuracy})  # fmt: skip
+                                          "model_accuracy": accuracy,
+                                          "imagined_accuracy": imagined})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
@@ -340,6 +343,9 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
+    print("imagined transitions (100 start states, I_B x I_D as in training) right: state "
+          "{state:.1%} (first step {first_step:.1%}), reward {reward:.1%}, terminal "
+          "{terminal:.1%}".format(**imagined))  # fmt: skip
 
 
 @app.command("plan")

@@ -125,3 +125,51 @@ def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
     n = int(success.sum())
     low, high = wilson_interval(n, episodes)
     return {"success": n / episodes, "ci_low": low, "ci_high": high, "episodes": episodes}
+
+
+
+@torch.no_grad()
+def imagined_accuracy(agent, starts: int = 100, seed: int = 0, model=None) -> dict[str, float]:
+    """How right the transitions are that imagination hands C. From ``starts`` real start
+    observations (first images of new episodes), the agent's I_B rollouts of up to I_D steps,
+    as Algorithm 1 imagines them (its start, draw and epsilon settings; the real epsilon taken
+    at its floor). Each imagined transition (z, a, z', r, d) is judged by V's latent
+    classifier, which the agent never uses: ``state`` when the macrostate read from z' is the
+    true successor of the one read from z under a; ``reward`` and ``terminal`` when r and d
+    are those of that true successor; ``first_step``: ``state`` on first steps only;
+    ``transitions``: how many were judged. ``model``: a population-form M to judge instead of
+    the agent's."""
+    from imagine.controller import PopulationController
+    from imagine.imagination import imagine_rollouts
+    from imagine.world_model import PopulationWorldModel
+
+    c = agent.config
+    envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
+    obs, info = envs.reset(seed=seed)
+    mu, sigma = agent.encoder.encode(obs, info["macrostate"])
+    if c.model_latents == "mu":
+        sigma = torch.zeros_like(sigma)
+    if model is None:
+        model = PopulationWorldModel([agent.model]).eval()
+    controller = PopulationController([agent.controller]).eval()
+    eps = c.imagination_epsilon if c.imagination_epsilon >= 0 else c.eps_min
+    generator = torch.Generator().manual_seed(seed)
+    judged = {"state": [], "reward": [], "terminal": [], "first_step": []}
+    for i in range(starts):
+        rollout = imagine_rollouts(
+            model, controller, mu[i : i + 1], sigma[i : i + 1], c.imagination_breadth,
+            c.imagination_depth, [eps], [generator], draw=c.imagination_draw,
+        )[0]  # fmt: skip
+        state = agent.encoder.classify(rollout["z"]).numpy()
+        truth = apply_actions(state, rollout["action"].numpy())
+        right = (agent.encoder.classify(rollout["next_z"]).numpy() == truth).all(-1)
+        levels = np.array([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
+        reward = levels[np.abs(rollout["reward"].numpy()[:, None] - levels).argmin(-1)]
+        judged["state"].append(right)
+        judged["first_step"].append(right[: min(c.imagination_breadth, len(right))])
+        judged["reward"].append(reward == rewards(truth, c.task))
+        done = rollout["done"].numpy().astype(bool)
+        judged["terminal"].append(done == is_terminal(truth, c.task))
+    out = {key: float(np.concatenate(values).mean()) for key, values in judged.items()}
+    out["transitions"] = float(sum(len(v) for v in judged["state"]))
+    return out
