@@ -110,6 +110,7 @@ def test_train_and_evaluate_commands(tmp_path):
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "success" in done.stdout and "M accuracy: transition" in done.stdout
+    assert "imagined transitions" in done.stdout
     assert (run / "evaluation.json").is_file()
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert saved["gamma"] == 0.9 and saved["dropout"] == 0.25
