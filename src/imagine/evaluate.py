@@ -154,22 +154,24 @@ def imagined_accuracy(agent, starts: int = 100, seed: int = 0, model=None) -> di
     controller = PopulationController([agent.controller]).eval()
     eps = c.imagination_epsilon if c.imagination_epsilon >= 0 else c.eps_min
     generator = torch.Generator().manual_seed(seed)
-    judged = {"state": [], "reward": [], "terminal": [], "first_step": []}
-    for i in range(starts):
-        rollout = imagine_rollouts(
-            model, controller, mu[i : i + 1], sigma[i : i + 1], c.imagination_breadth,
-            c.imagination_depth, [eps], [generator], draw=c.imagination_draw,
-        )[0]  # fmt: skip
-        state = agent.encoder.classify(rollout["z"]).numpy()
-        truth = apply_actions(state, rollout["action"].numpy())
-        right = (agent.encoder.classify(rollout["next_z"]).numpy() == truth).all(-1)
-        levels = np.array([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
-        reward = levels[np.abs(rollout["reward"].numpy()[:, None] - levels).argmin(-1)]
-        judged["state"].append(right)
-        judged["first_step"].append(right[: min(c.imagination_breadth, len(right))])
-        judged["reward"].append(reward == rewards(truth, c.task))
-        done = rollout["done"].numpy().astype(bool)
-        judged["terminal"].append(done == is_terminal(truth, c.task))
-    out = {key: float(np.concatenate(values).mean()) for key, values in judged.items()}
-    out["transitions"] = float(sum(len(v) for v in judged["state"]))
+    breadth = c.imagination_breadth
+    rollout = imagine_rollouts(
+        model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
+        sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
+        [generator], draw=c.imagination_draw,
+    )[0]  # fmt: skip
+    state = agent.encoder.classify(rollout["z"]).numpy()
+    truth = apply_actions(state, rollout["action"].numpy())
+    right = (agent.encoder.classify(rollout["next_z"]).numpy() == truth).all(-1)
+    levels = np.array([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
+    reward = levels[np.abs(rollout["reward"].numpy()[:, None] - levels).argmin(-1)]
+    done = rollout["done"].numpy().astype(bool)
+    judged = {
+        "state": right,
+        "first_step": right[: starts * breadth],  # time-major: every rollout's first step
+        "reward": reward == rewards(truth, c.task),
+        "terminal": done == is_terminal(truth, c.task),
+    }
+    out = {key: float(values.mean()) for key, values in judged.items()}
+    out["transitions"] = float(len(right))
     return out

@@ -37,12 +37,17 @@ def imagine_rollouts(
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done)``
     of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
-    ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), in the order they were imagined;
+    ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), or of one rollout from each of
+    ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order imagined;
     None for agents without one. ``draw``: each next state a sample of M's mixture (the
     paper), or its mode (the mean of the heaviest component)."""
-    P, D = mu.shape
+    if mu.dim() == 2:
+        mu, sigma = mu.unsqueeze(1), sigma.unsqueeze(1)
+    else:
+        breadth = mu.shape[1]
+    P, _, D = mu.shape
     shape = (P, breadth, D)
-    z = agent_normal(mu.unsqueeze(1).expand(shape), sigma.unsqueeze(1).expand(shape), generators)
+    z = agent_normal(mu.expand(shape), sigma.expand(shape), generators)
     going = torch.tensor([g is not None for g in generators], device=mu.device)
     alive = going.unsqueeze(1).expand(P, breadth).clone()
     steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
