@@ -11,7 +11,7 @@ from imagine.errors import ConfigError
 from imagine.evaluate import imagined_accuracy
 from imagine.imagination import imagine_rollouts
 from imagine.latent_classifier import LatentClassifier
-from imagine.report import area_under_curve, curve_summary, first_reaching
+from imagine.report import area_under_curve, curve_summary, first_reaching, where_paper_stood
 from imagine.vision_report import latent_activity
 from imagine.world_model import PopulationWorldModel, WorldModel
 
@@ -223,3 +223,10 @@ def test_imagined_accuracy_judges_imagined_transitions_by_the_rules():
     assert exact["transitions"] >= 20 * config.imagination_breadth
     frozen = imagined_accuracy(agent, starts=20, model=RuleModel(encoder, "hard", frozen=True))
     assert frozen["state"] == 0.0 and frozen["first_step"] == 0.0
+
+
+def test_where_the_papers_baseline_stood():
+    rows = [{"task": "hard", "method": "baseline", "budget": b, "mean": m}
+            for b, m in ((250, 5.0), (1000, 31.0), (2000, 84.0))]  # fmt: skip
+    (line,) = where_paper_stood(rows)
+    assert "(30.1%)" in line and "by 1000 episodes" in line

@@ -60,6 +60,10 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     assert "Table I (original task)" in report and "Table II (hard task)" in report
     assert "Deviations from the paper" in report and "claims" in report
     assert "original, plans" in report and "hard, model generalization" in report
+    assert "## Learning curves" in report and "area under the success curve" in report
+    curves = (out / "tables" / "curves.md").read_text().splitlines()
+    assert len(curves) == 2 + 2 * 2  # header, rule, (task, method) rows
+    assert (out / "tables" / "curves.csv").is_file()
     last = json.loads((out / "runs" / "hard-augmented-1" / "evaluation-00040.json").read_text())
     assert last["plans"]["trials"] == 20 and last["generalization"]["trials"] == 20
     before = evaluation_times(out)
