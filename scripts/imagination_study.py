@@ -100,6 +100,18 @@ def cell(values: list[float]) -> str:
     return f"{x.mean():.1f}{std}" + ("" if len(x) >= 5 else f" [n={len(x)}]")
 
 
+def from_terminal(accuracy: dict[str, float], task: str) -> float:
+    """M's most-likely accuracy on the transitions from terminal states (generalization), from
+    the accuracies over all 192 x 6 transitions and over the non-terminal ones."""
+    from imagine.env.rules import all_macrostates, is_terminal
+
+    if "transition_terminal" in accuracy:
+        return accuracy["transition_terminal"]
+    total, terminal = 192 * 6, int(is_terminal(all_macrostates(), task).sum()) * 6
+    right = accuracy["transition"] * total - accuracy["transition_nonterminal"] * (total - terminal)
+    return right / terminal
+
+
 def imagined(job: Job, budget: int) -> dict[str, float] | None:
     """The imagined-transition accuracy of a finished augmented run at its last checkpoint
     (cached in imagined-NNNNN.json)."""
@@ -125,6 +137,7 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
     last = budgets[-1]
     head = [f"{t} {b}" for t in tasks for b in budgets] + [f"M sampled {t}" for t in tasks]
     head += [f"imagined right {t} (state / reward)" for t in tasks]
+    head += [f"M from terminal states {t}" for t in tasks]
     lines = ["| setting | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
     for setting in settings:
         jobs = jobs_of(setting, out, tasks, seeds, budgets, vae)
@@ -142,6 +155,13 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
             found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
             both = [cell([x[k] for x in found]) for k in ("state", "reward")]
             cells.append(" / ".join(both) if found else "-")
+        for t in tasks:
+            general = [
+                from_terminal(r["model_accuracy"], t)
+                for r in rows
+                if r["task"] == t and r["budget"] == last and r["model_accuracy"]
+            ]
+            cells.append(cell(general))
         lines.append(f"| {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -70,7 +70,7 @@ def main() -> None:
             model = train_m(memory, agent.encoder.latent_dim, resample, residual, args.updates,
                             args.batch)  # fmt: skip
             a = model_accuracy(model, agent.encoder, agent.config.task)
-            general = generalization_accuracy(a, agent.config.task)
+            general = a["transition_terminal"]
             results[name].append((a["transition_nonterminal"], a["transition_sampled"], general))
             print(f"  {name}: most likely {a['transition_nonterminal']:.1%}, sampled "
                   f"{a['transition_sampled']:.1%}, from terminal states {general:.1%}",
@@ -83,17 +83,6 @@ def main() -> None:
         cells = [f"{m:.1f} ({s:.1f})" for m, s in zip(x.mean(0), x.std(0, ddof=1) if len(x) > 1
                                                        else np.zeros(3), strict=True)]  # fmt: skip
         print(f"| {name} | " + " | ".join(cells) + " |")
-
-
-def generalization_accuracy(accuracy: dict[str, float], task: str) -> float:
-    """Most-likely accuracy over the transitions from terminal states, from the overall and the
-    non-terminal accuracies (the 192 x 6 transitions split into the two)."""
-    from imagine.env.rules import all_macrostates, is_terminal
-
-    terminal = int(is_terminal(all_macrostates(), task).sum()) * 6
-    total = 192 * 6
-    right = accuracy["transition"] * total - accuracy["transition_nonterminal"] * (total - terminal)
-    return right / terminal
 
 
 if __name__ == "__main__":

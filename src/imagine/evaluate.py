@@ -79,6 +79,9 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
       (the paper's Fig. 7 test).
     - ``transition_nonterminal``: the same over the 324 (original) or 396 (hard) transitions
       from non-terminal states, the ones M learns from.
+    - ``transition_terminal``: the same over the transitions from terminal states, which no
+      real transition starts from: M's generalization (the paper's Fig. 7 test, over all of
+      them).
     - ``transition_sampled``: as ``transition_nonterminal`` but with a *sample* of M
       (component, then Gaussian; fixed seed): what imagination consumes.
     - ``reward`` / ``terminal``: over those same transitions, how often r (rounded to the nearest
@@ -105,6 +108,7 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     return {
         "transition": float(right_state.mean()),
         "transition_nonterminal": float(right_state[seen].mean()),
+        "transition_terminal": float(right_state[~seen].mean()),
         "transition_sampled": float(right_sample.mean()),
         "reward": float((reward == rewards(truth[seen], task)).mean()),
         "terminal": float((terminal == is_terminal(truth[seen], task)).mean()),
