@@ -122,8 +122,10 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     peak = peak_flops()
     print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
-    print("| preset | agents | agent steps/s | ms per lockstep step | M update ms | "
-          "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |")
+    print(
+        "| preset | agents | agent steps/s | ms per lockstep step | M update ms | "
+        "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for preset in ("fast", "paper"):
         for agents in (int(a) for a in args.agents.split(",")):

@@ -69,6 +69,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**PAPER_READING, "model_residual": True, "imagination_draw": "mode"},
     ),
+    "augmented, M on mu, imagined next state = M's mode": (
+        "augmented",
+        {**PAPER_READING, "model_latents": "mu", "imagination_draw": "mode"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

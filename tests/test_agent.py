@@ -1,5 +1,6 @@
 """Algorithm 1 end to end (oracle encoder): it learns, it resumes, it rejects bad settings."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -110,8 +111,10 @@ def test_train_and_evaluate_commands(tmp_path):
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "success" in done.stdout and "M accuracy: transition" in done.stdout
-    assert "imagined transitions" in done.stdout
-    assert (run / "evaluation.json").is_file()
+    assert "imagined transitions (sample, as in training" in done.stdout
+    assert "the same M with imagination_draw=mode" in done.stdout
+    written = json.loads((run / "evaluation.json").read_text())
+    assert 0 <= written["imagined_accuracy_mode"]["state"] <= 1
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert saved["gamma"] == 0.9 and saved["dropout"] == 0.25
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "pop"), "--preset", "smoke",

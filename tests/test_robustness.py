@@ -61,8 +61,10 @@ def test_a_single_run_with_a_nan_loss_raises(tmp_path, monkeypatch):
 
     monkeypatch.setattr(Population, "__init__", poisoned)
     with pytest.raises(NumericalError, match=r"M's d-network loss became nan"):
-        train(agent_preset("smoke", encoder="oracle", episodes=30, imagination_start=10),
-              tmp_path / "run")
+        train(
+            agent_preset("smoke", encoder="oracle", episodes=30, imagination_start=10),
+            tmp_path / "run",
+        )
 
 
 def test_a_study_goes_on_when_one_run_diverges(tmp_path):

@@ -131,4 +131,3 @@ def optimizer_from_tensors(
             state.setdefault(int(index), {})[name] = value
     state_dict["state"] = state
     optimizer.load_state_dict(state_dict)
-

@@ -204,8 +204,10 @@ def vae_report(
     table.add_row("posterior sigma per dimension",
                   " ".join(f"{x:.2f}" for x in report["sigma_per_dimension"]))  # fmt: skip
     collapsed = report["collapsed_dimensions"]
-    table.add_row("active dimensions (collapsed)",
-                  f"{report['active_dimensions']} ({', '.join(map(str, collapsed)) or 'none'})")
+    table.add_row(
+        "active dimensions (collapsed)",
+        f"{report['active_dimensions']} ({', '.join(map(str, collapsed)) or 'none'})",
+    )
     for probe in ("classifier", "linear_probe"):
         for name, value in report[f"{probe}_accuracy"].items():
             label = "MLP probe" if probe == "classifier" else "linear probe"
@@ -239,8 +241,10 @@ def train_agent(
     seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     seeds: Annotated[
         str | None,
-        typer.Option(help="Comma-separated seeds trained together as one population, each "
-                     "into OUT/seed-N (each with exactly its numbers alone)."),
+        typer.Option(
+            help="Comma-separated seeds trained together as one population, each "
+            "into OUT/seed-N (each with exactly its numbers alone)."
+        ),
     ] = None,
     preset: PresetOption = "fast",
     vae: Annotated[Path | None, typer.Option(help="V run folder (imagine vae train).")] = None,
@@ -327,13 +331,15 @@ def evaluate_agent(
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
-    accuracy = imagined = None
+    accuracy = imagined = imagined_other = None
+    other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
         imagined = imagined_accuracy(agent)
-    write_json(run / "evaluation.json", {"after_episodes": agent.episode, **result,
-                                          "model_accuracy": accuracy,
-                                          "imagined_accuracy": imagined})  # fmt: skip
+        imagined_other = imagined_accuracy(agent, draw=other)
+    write_json(run / "evaluation.json", {
+        "after_episodes": agent.episode, **result, "model_accuracy": accuracy,
+        "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
@@ -343,9 +349,11 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
-    print("imagined transitions (100 start states, I_B x I_D as in training) right: state "
-          "{state:.1%} (first step {first_step:.1%}), reward {reward:.1%}, terminal "
-          "{terminal:.1%}".format(**imagined))  # fmt: skip
+    print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "
+          "states, I_B x I_D) right: state {state:.1%} (first step {first_step:.1%}), reward "
+          "{reward:.1%}, terminal {terminal:.1%}".format(**imagined))  # fmt: skip
+    print(f"the same M with imagination_draw={other}: state {{state:.1%}}, reward "
+          "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip
 
 
 @app.command("plan")

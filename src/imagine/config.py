@@ -353,8 +353,18 @@ AGENT_PRESETS: dict[str, dict[str, Any]] = {
     # the MDN's scales wide (samples land in the wrong macrostate) and its accuracy 15 points
     # lower at I_start (README, issue 4 notes). The r-network has 3 x 128 units instead of
     # 3 x 512 (it was 70% of M's FLOPs; it reads 3 reward levels from an 8-D state and is right
-    # for 98% of next states either way). Everything else is the paper's.
-    "fast": {"model_updates": 2, "model_batch": 128, "dropout": 0.0, "reward_hidden": 128},
+    # for 98% of next states either way). Imagination hands C M's most likely next state (the
+    # mean of its heaviest component) instead of a draw from the whole mixture: on `hard` at
+    # 2000 episodes the imagined transitions are then right 99.5% of the time instead of ~75%,
+    # and the augmented agent rises from below the baseline to above it (README, issue 14).
+    # Everything else is the paper's.
+    "fast": {
+        "model_updates": 2,
+        "model_batch": 128,
+        "dropout": 0.0,
+        "reward_hidden": 128,
+        "imagination_draw": "mode",
+    },
     "smoke": {
         "episodes": 300,
         "model_updates": 1,

@@ -131,9 +131,10 @@ def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
     return {"success": n / episodes, "ci_low": low, "ci_high": high, "episodes": episodes}
 
 
-
 @torch.no_grad()
-def imagined_accuracy(agent, starts: int = 100, seed: int = 0, model=None) -> dict[str, float]:
+def imagined_accuracy(
+    agent, starts: int = 100, seed: int = 0, model=None, draw: str | None = None
+) -> dict[str, float]:
     """How right the transitions are that imagination hands C. From ``starts`` real start
     observations (first images of new episodes), the agent's I_B rollouts of up to I_D steps,
     as Algorithm 1 imagines them (its start, draw and epsilon settings; the real epsilon taken
@@ -142,7 +143,8 @@ def imagined_accuracy(agent, starts: int = 100, seed: int = 0, model=None) -> di
     true successor of the one read from z under a; ``reward`` and ``terminal`` when r and d
     are those of that true successor; ``first_step``: ``state`` on first steps only;
     ``transitions``: how many were judged. ``model``: a population-form M to judge instead of
-    the agent's."""
+    the agent's; ``draw``: ``sample`` or ``mode`` in place of the agent's ``imagination_draw``
+    (the same M judged both ways)."""
     from imagine.controller import PopulationController
     from imagine.imagination import imagine_rollouts
     from imagine.world_model import PopulationWorldModel
@@ -162,7 +164,7 @@ def imagined_accuracy(agent, starts: int = 100, seed: int = 0, model=None) -> di
     rollout = imagine_rollouts(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
-        [generator], draw=c.imagination_draw,
+        [generator], draw=draw or c.imagination_draw,
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())

@@ -191,9 +191,7 @@ class PopulationAdam:
                 out[f"{prefix}.{index}.{name}"] = value.detach().cpu().clone()
         return out
 
-    def load_agent_state(
-        self, agent: int, tensors: dict[str, torch.Tensor], prefix: str
-    ) -> None:
+    def load_agent_state(self, agent: int, tensors: dict[str, torch.Tensor], prefix: str) -> None:
         for index, s in enumerate(self.slices[agent]):
             names = ("step", "exp_avg", "exp_avg_sq")
             keys = [f"{prefix}.{index}.{name}" for name in names]
