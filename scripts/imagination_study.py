@@ -166,7 +166,7 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
                 if r["task"] == t and r["budget"] == last and r["model_accuracy"]
             ]
             cells.append(cell(general))
-        lines.append(f"| {setting} | " + " | ".join(cells) + " |")
+        lines.append(f"| {SHORT[setting]}: {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
