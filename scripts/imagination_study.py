@@ -73,6 +73,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**PAPER_READING, "model_latents": "mu", "imagination_draw": "mode"},
     ),
+    "baseline, a real C update in place of each imagined one from I_start": (
+        "baseline",
+        {"imagination_start": 1000, "real_in_place_of_imagined": True},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

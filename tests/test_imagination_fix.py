@@ -230,3 +230,21 @@ def test_where_the_papers_baseline_stood():
             for b, m in ((250, 5.0), (1000, 31.0), (2000, 84.0))]  # fmt: skip
     (line,) = where_paper_stood(rows)
     assert "(30.1%)" in line and "by 1000 episodes" in line
+
+
+def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
+    """The baseline's control for imagination: N_I extra real C updates from I_start, none
+    before, and only for the baseline."""
+    from imagine.agent import train
+    from imagine.metrics import read_metrics
+
+    config = agent_preset("smoke", encoder="oracle", method="baseline", episodes=60,
+                          imagination_start=30, log_every=10,
+                          real_in_place_of_imagined=True)  # fmt: skip
+    train(config, tmp_path, threads=1)
+    rows = read_metrics(tmp_path / "metrics.csv")
+    extra = [r.get("losses/controller_real_extra") for r in rows]
+    assert all(x is None or x != x for x in extra[:2])  # no extra updates before I_start
+    assert all(x is not None and x == x for x in extra[-2:])  # every step after it
+    with pytest.raises(ConfigError, match="control for method baseline"):
+        agent_preset("fast", method="augmented", real_in_place_of_imagined=True)

@@ -239,6 +239,11 @@ class AgentConfig:
     imagination_epsilon: float = -1.0
     """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
     paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
+    real_in_place_of_imagined: bool = False
+    """The control for imagination (baseline only): from I_start on, C makes N_I more updates
+    per step on real batches, exactly where and as many as the augmented agent makes on
+    imagined ones, so that a gain of imagination is shown to come from M, not from one more
+    update per step."""
     baseline_trains_m: bool = False
     """Train M in baseline runs too (only for its accuracy curve: C never uses it there)."""
     controller_lr: float = 1e-3
@@ -315,6 +320,8 @@ class AgentConfig:
                      "target_update_period", "imagination_start", "seed"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
+        if self.real_in_place_of_imagined and self.method != "baseline":
+            raise ConfigError("agent.real_in_place_of_imagined is a control for method baseline")
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"agent.gamma must be in [0, 1], got {self.gamma}")
         if not (self.imagination_epsilon == -1.0 or 0.0 <= self.imagination_epsilon <= 1.0):

@@ -204,9 +204,25 @@ class Population:
         z = agent_normal(batch["mu"], batch["sigma"], gens)
         return z, agent_normal(batch["next_mu"], batch["next_sigma"], gens)
 
+    def _real_in_place_of_imagined(self, live: list[int]) -> None:
+        """The baseline's control: N_I more real updates for the agents past their I_start."""
+        c = self.config
+        past = [i for i in live if self.episode[i] >= c.imagination_start]
+        if not past:
+            return
+        gens = [g if i in past else None for i, g in enumerate(self.generators)]
+        rows = torch.as_tensor(past, device=self.device)
+        for _ in range(c.n_imaginary_updates):
+            b = self.real.sample(c.real_batch, gens)
+            z, next_z = self._controller_states(b, gens)
+            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], past)
+            self._record("losses/controller_real_extra", loss, rows)
+
     def _imagine(self, live: list[int], eps: list[float]) -> None:
         """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""
         c = self.config
+        if c.real_in_place_of_imagined:
+            self._real_in_place_of_imagined(live)
         if c.method != "augmented":
             return
         imagining = [i for i in live if self.episode[i] >= c.imagination_start]
