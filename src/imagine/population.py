@@ -156,11 +156,10 @@ class Population:
             losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
-        for _ in range(c.n_real_updates):
-            b = self.real.sample(c.real_batch, gens)
-            z, next_z = self._controller_states(b, gens)
-            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], live)
-            self._record("losses/controller_real", loss, rows)
+        self._learn_from_real(live, c.n_real_updates, "losses/controller_real")
+        if c.real_in_place_of_imagined:  # the control for imagination, from I_start on
+            past = [i for i in live if self.episode[i] >= c.imagination_start]
+            self._learn_from_real(past, c.n_imaginary_updates, "losses/controller_real_extra")
         self._imagine(live, eps)
         self.mu[rows], self.sigma[rows] = next_mu, next_sigma
         ended = []
@@ -204,25 +203,21 @@ class Population:
         z = agent_normal(batch["mu"], batch["sigma"], gens)
         return z, agent_normal(batch["next_mu"], batch["next_sigma"], gens)
 
-    def _real_in_place_of_imagined(self, live: list[int]) -> None:
-        """The baseline's control: N_I more real updates for the agents past their I_start."""
-        c = self.config
-        past = [i for i in live if self.episode[i] >= c.imagination_start]
-        if not past:
+    def _learn_from_real(self, agents: list[int], updates: int, key: str) -> None:
+        """Lines 14-16: ``updates`` C updates of ``agents`` on real batches from M_R."""
+        if not agents:
             return
-        gens = [g if i in past else None for i, g in enumerate(self.generators)]
-        rows = torch.as_tensor(past, device=self.device)
-        for _ in range(c.n_imaginary_updates):
-            b = self.real.sample(c.real_batch, gens)
+        gens = [g if i in agents else None for i, g in enumerate(self.generators)]
+        rows = torch.as_tensor(agents, device=self.device)
+        for _ in range(updates):
+            b = self.real.sample(self.config.real_batch, gens)
             z, next_z = self._controller_states(b, gens)
-            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], past)
-            self._record("losses/controller_real_extra", loss, rows)
+            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], agents)
+            self._record(key, loss, rows)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
         """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""
         c = self.config
-        if c.real_in_place_of_imagined:
-            self._real_in_place_of_imagined(live)
         if c.method != "augmented":
             return
         imagining = [i for i in live if self.episode[i] >= c.imagination_start]

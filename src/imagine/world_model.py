@@ -241,11 +241,10 @@ class PopulationWorldModel(nn.Module):
     @torch.no_grad()
     def mode(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The mean of each row's heaviest component (P, N, D): the most likely next state."""
-        log_pi, mu, _ = self.heads(z, action)
-        shape = (*log_pi.shape, self.latent_dim)
-        k = log_pi.argmax(-1)[..., None, None].expand(*shape[:-2], 1, shape[-1])
-        mode = mu.view(shape).gather(-2, k).squeeze(-2)
-        return z + mode if self.residual else mode
+        m = mixture_from_heads(*self.heads(z, action), self.latent_dim, self.min_sigma,
+                               z if self.residual else None)  # fmt: skip
+        k = m.log_pi.argmax(-1)[..., None, None].expand(*m.mu.shape[:-2], 1, self.latent_dim)
+        return m.mu.gather(-2, k).squeeze(-2)
 
     def update(
         self,
