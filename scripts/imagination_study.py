@@ -77,6 +77,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "baseline",
         {"imagination_start": 1000, "real_in_place_of_imagined": True},
     ),
+    "augmented, mode, rollouts from states of M_R (Dyna)": (
+        "augmented",
+        {**PAPER_READING, "imagination_draw": "mode", "imagination_from": "memory"},
+    ),
+    "augmented, mode, rollouts from states of M_R, epsilon 0.2 in imagination": (
+        "augmented",
+        {**PAPER_READING, "imagination_draw": "mode", "imagination_from": "memory",
+         "imagination_epsilon": 0.2},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -248,3 +248,31 @@ def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
     assert all(x is not None and x == x for x in extra[-2:])  # every step after it
     with pytest.raises(ConfigError, match="control for method baseline"):
         agent_preset("fast", method="augmented", real_in_place_of_imagined=True)
+
+
+@pytest.mark.parametrize("start", ["current", "memory"])
+def test_imagined_rollouts_start_where_imagination_from_says(start):
+    """imagination_from=current: every rollout starts at the agent's current state (the paper);
+    memory: at states of transitions in M_R (Dyna), not all of them the current one."""
+    from imagine.encoder import OracleEncoder
+    from imagine.population import Population
+
+    config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
+                          imagination_depth=1, imagination_breadth=4, model_latents="mu",
+                          imagination_from=start)  # fmt: skip
+    population = Population([config], OracleEncoder())
+    currents, steps = [], 40
+    for _ in range(steps):
+        population._start_episodes()
+        currents.append(population.mu[0].clone())
+        population.step()
+    imagined = population.imaginary.newest(4 * steps)["z"].view(steps, 4, -1)
+    current = torch.stack(currents).unsqueeze(1)
+    at_current = (imagined == current).all(-1)
+    real = population.real.newest(steps)["mu"]
+    in_memory = (imagined.view(-1, 1, real.shape[-1]) == real).all(-1).any(-1)
+    assert bool(in_memory.all())
+    if start == "current":
+        assert bool(at_current.all())
+    else:
+        assert float(at_current.float().mean()) < 0.5

@@ -236,6 +236,11 @@ class AgentConfig:
     imagination_draw: str = "sample"
     """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
     then its Gaussian; the paper) or mode (the mean of the heaviest component)."""
+    imagination_from: str = "current"
+    """Where the I_B imagined rollouts of a step start: current (the paper: each from the agent's
+    current latent state, so with a near-greedy C they retrace the path C is about to take) or
+    memory (Dyna, MBPO: each from the state of a transition drawn uniformly from M_R, so M
+    hands C rollouts from states and actions the real path is not on)."""
     imagination_epsilon: float = -1.0
     """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
     paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
@@ -302,7 +307,8 @@ class AgentConfig:
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
                    "encoder": ("vae", "oracle"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
-                   "imagination_draw": ("sample", "mode")}  # fmt: skip
+                   "imagination_draw": ("sample", "mode"),
+                   "imagination_from": ("current", "memory")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(

@@ -224,11 +224,13 @@ class Population:
         if not imagining:
             return
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
-        sigma = self.sigma if c.model_latents == "sample" else torch.zeros_like(self.sigma)
+        mu, sigma = self._imagination_starts(gens)
+        if c.model_latents == "mu":
+            sigma = torch.zeros_like(sigma)
         if c.imagination_epsilon >= 0:
             eps = [c.imagination_epsilon] * self.size
         rollouts = imagine_rollouts(
-            self.model, self.controller, self.mu, sigma, c.imagination_breadth,
+            self.model, self.controller, mu, sigma, c.imagination_breadth,
             c.imagination_depth, eps, gens, draw=c.imagination_draw,
         )  # fmt: skip
         for i in imagining:
@@ -241,6 +243,16 @@ class Population:
                 b["z"], b["action"], b["reward"], b["next_z"], b["done"], imagining
             )
             self._record("losses/controller_imaginary", loss, rows)
+
+    def _imagination_starts(
+        self, gens: list[torch.Generator | None]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The posteriors the rollouts start from: the current one, (P, latent_dim), or I_B
+        states of M_R drawn uniformly, (P, I_B, latent_dim) (``imagination_from``)."""
+        if self.config.imagination_from == "current":
+            return self.mu, self.sigma
+        starts = self.real.sample(self.config.imagination_breadth, gens)
+        return starts["mu"], starts["sigma"]
 
     def _record(self, key: str, loss: torch.Tensor, rows: torch.Tensor) -> None:
         if key not in self._loss_sum:
