@@ -83,8 +83,12 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     "augmented, mode, rollouts from states of M_R, epsilon 0.2 in imagination": (
         "augmented",
-        {**PAPER_READING, "imagination_draw": "mode", "imagination_from": "memory",
-         "imagination_epsilon": 0.2},
+        {
+            **PAPER_READING,
+            "imagination_draw": "mode",
+            "imagination_from": "memory",
+            "imagination_epsilon": 0.2,
+        },
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
