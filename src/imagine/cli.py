@@ -433,6 +433,7 @@ def reproduce_study(
     """The paper's section V in one command: V, every (task, method, seed) agent evaluated at
     every budget, Tables I and II, figures and REPORT.md in OUT. Run again to resume."""
     from imagine.config import parse_assignments
+    from imagine.experiments import folder_lock
     from imagine.reproduce import StudyConfig, reproduce
 
     def numbers(text: str, name: str) -> tuple[int, ...]:
@@ -450,8 +451,10 @@ def reproduce_study(
     start = time.perf_counter()
     total = len(config.tasks) * 2 * config.seeds * (len(config.budgets) if separate_runs else 1)
     running: list[str] = []
-    with Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[running]}"), console=console) as bar:  # fmt: skip
+    with folder_lock(out, notice=console.print), Progress(  # refused before any bar shows
+        TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
+        TextColumn("{task.fields[running]}"), console=console,
+    ) as bar:  # fmt: skip
         task_id = bar.add_task("runs", total=total, running="")
 
         def on_start(job) -> None:

@@ -36,3 +36,7 @@ class Interrupted(ImagineError):
     def __init__(self, message: str, signal_number: int) -> None:
         super().__init__(message)
         self.signal_number = signal_number
+
+
+class FolderInUse(ImagineError):
+    """Another live process is running jobs in this folder (its lock names the process)."""

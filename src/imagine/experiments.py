@@ -15,20 +15,28 @@ lockstep in one process, each with exactly the numbers it would have alone.
 Populations run behind one interface, :class:`Runner`: :class:`LocalRunner` (processes on this
 machine, one torch thread each) or :class:`RayRunner` (a Ray cluster; ``pip install
 imagine[ray]``). Both call :func:`run_jobs`, so the numbers do not depend on the backend.
+
+One process at a time runs jobs in a folder: :func:`folder_lock` (a runner locks the folders
+that hold its jobs' run folders, ``imagine reproduce`` its ``OUT`` as well).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import multiprocessing
 import os
 import secrets
+import shlex
 import signal
+import sys
 import tempfile
+import time
 import traceback
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -39,6 +47,16 @@ from imagine.checkpoint import read_json, write_json
 
 EVAL_SEED = 1_000_000
 """Seed of the greedy test episodes (the same for every run and budget)."""
+
+LOCK_FILE = ".imagine.lock"
+"""In a locked folder: the ``flock`` of the process running jobs there, and its PID and
+command line, for the message of whoever finds it busy."""
+
+RAY_RETRIES = 3
+"""How many times Ray runs a population again whose worker died (killed, out of memory)."""
+
+_held: dict[Path, int] = {}
+"""The folders this process has locked, and its PID (a forked child holds none of them)."""
 
 
 @dataclass(frozen=True)
@@ -198,8 +216,79 @@ def studies_of_m(job: Job, agent, budget: int) -> dict[str, Any]:
     return out
 
 
+@contextmanager
+def folder_lock(folder: str | Path, notice: Callable[[str], None] | None = None) -> Iterator[None]:
+    """Hold ``folder``'s lock while the block runs; re-entrant within a process. A process
+    that finds it held raises :class:`~imagine.errors.FolderInUse` naming the holder. The
+    kernel releases the lock when its holder ends, however it ends (``kill -9`` too), so a lock
+    file nobody holds is stale and is taken over, with ``notice`` when its holder died."""
+    from imagine.errors import FolderInUse
+
+    folder = Path(folder).resolve()
+    if _held.get(folder) == os.getpid():
+        yield
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid, command = _lock_holder(fd, wait=True)
+            who = (f"process {pid}" + (f" ({command})" if command else "")) if pid else "a process"
+            raise FolderInUse(
+                f"{folder} is in use by {who}; wait for it to end or stop it, then run again"
+            ) from None
+        pid, _ = _lock_holder(fd)
+        if pid is not None and notice is not None:  # a clean release leaves the file empty
+            notice(f"{folder}: taking over the lock of process {pid}, which died holding it")
+        me = f"{os.getpid()}\n{shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]])}\n".encode()
+        os.pwrite(fd, me, 0)
+        os.ftruncate(fd, len(me))
+        _held[folder] = os.getpid()
+        try:
+            yield
+        finally:
+            del _held[folder]
+            os.ftruncate(fd, 0)
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _lock_holder(fd: int, wait: bool = False) -> tuple[int | None, str]:
+    """The PID and command line in a lock file (None: none); with ``wait``, up to a second for
+    a live PID (a new holder writes its own just after taking the lock)."""
+    for attempt in range(10 if wait else 1):
+        time.sleep(0.1 if attempt else 0)
+        lines = os.pread(fd, 4096, 0).decode(errors="replace").splitlines()
+        pid = int(lines[0]) if lines and lines[0].isdigit() else None
+        if pid is not None and (not wait or _alive(pid)):
+            break
+    return pid, lines[1] if pid is not None and len(lines) > 1 else ""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        pass
+    return True
+
+
+@contextmanager
+def job_folders_locked(jobs: Iterable[Job]) -> Iterator[None]:
+    """Every folder that holds run folders of ``jobs``, locked (:func:`folder_lock`)."""
+    with ExitStack() as stack:
+        for folder in sorted({Path(job.folder).parent for job in jobs}):
+            stack.enter_context(folder_lock(folder))
+        yield
+
+
 class Runner(Protocol):
-    """Runs jobs and reports each one as it ends."""
+    """Runs jobs and reports each one as it ends, holding the lock of every folder that holds
+    their run folders (:func:`job_folders_locked`) meanwhile."""
 
     def run(
         self,
@@ -235,7 +324,11 @@ class LocalRunner:
         from imagine.stopping import StopSignals
 
         context = multiprocessing.get_context("spawn")
-        with StopSignals() as stop, ProcessPoolExecutor(self.workers, mp_context=context) as pool:
+        with (
+            job_folders_locked(jobs),
+            StopSignals() as stop,
+            ProcessPoolExecutor(self.workers, mp_context=context) as pool,
+        ):
             pending = {}
             queue = population_groups(jobs)
             forwarded = False
@@ -278,7 +371,13 @@ class LocalRunner:
 @dataclass
 class RayRunner:
     """A Ray cluster: ``address`` of an existing one, or a local instance bound to localhost,
-    without a dashboard, its temporary files under ``temp_dir``."""
+    without a dashboard, its temporary files under ``temp_dir``.
+
+    A population whose worker dies (killed, out of memory, its node lost) is run again, up to
+    :data:`RAY_RETRIES` times, and resumes where it was: :func:`run_jobs` reads back the budgets
+    already evaluated and trains on from each run's last checkpoint. An error of our own code
+    is never retried: :func:`_guarded` returns it as the job's error. A population that
+    exhausts its retries is reported as failed and the others go on."""
 
     workers: int = 2
     address: str | None = None
@@ -293,6 +392,10 @@ class RayRunner:
             from imagine.errors import ConfigError
 
             raise ConfigError("the ray backend needs Ray: pip install 'imagine[ray]'") from None
+        with job_folders_locked(jobs):
+            self._run(ray, jobs, on_start, on_done)
+
+    def _run(self, ray, jobs, on_start, on_done) -> None:
         started = not ray.is_initialized()
         if started:
             if self.address is not None:
@@ -310,7 +413,8 @@ class RayRunner:
             # a task that asks for no GPU sees none (Ray empties CUDA_VISIBLE_DEVICES)
             gpus = ray.cluster_resources().get("GPU", 0) if self.device != "cpu" else 0
             share = min(1.0, gpus / self.workers) if gpus else 0
-            remote = ray.remote(num_cpus=1, num_gpus=share)(_guarded)
+            remote = ray.remote(num_cpus=1, num_gpus=share, max_retries=RAY_RETRIES,
+                                retry_exceptions=False)(_guarded)  # fmt: skip
             pending = {}
             for group in population_groups(jobs):
                 for job in group:
@@ -319,7 +423,11 @@ class RayRunner:
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
-                    errors = ray.get(ref)
+                    try:
+                        errors = ray.get(ref)
+                    except ray.exceptions.RayError as exc:  # its worker died, past the retries
+                        why = f"{type(exc).__name__}: {str(exc).strip().splitlines()[-1]}"
+                        errors = {job.name: f"{job.name}: {why}" for job in pending[ref]}
                     for job in pending.pop(ref):
                         on_done(job, errors[job.name])
         finally:

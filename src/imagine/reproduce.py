@@ -4,7 +4,8 @@ Into ``OUT``: ``vae/`` (V, trained once unless a V run is given), ``runs/<task>-
 (every agent, evaluated at every budget), ``tables/`` (Tables I and II, Markdown and CSV),
 ``figures/`` (success against episodes, % increase, M's accuracy, V's reconstructions),
 ``random.json`` (the random agent) and ``REPORT.md``. Rerunning picks up where a stopped study
-was: finished runs are read back, never run again.
+was: finished runs are read back, never run again. One process at a time: ``OUT`` is locked
+while a study runs there.
 """
 
 from __future__ import annotations
@@ -27,7 +28,14 @@ from imagine.config import (
     check_preset,
 )
 from imagine.errors import ConfigError
-from imagine.experiments import Job, LocalRunner, RayRunner, load_evaluations, study_jobs
+from imagine.experiments import (
+    Job,
+    LocalRunner,
+    RayRunner,
+    folder_lock,
+    load_evaluations,
+    study_jobs,
+)
 from imagine.report import (
     accuracy_figure,
     claims,
@@ -222,9 +230,22 @@ def reproduce(
     on_start: Callable[[Job], None] | None = None,
     on_done: Callable[[Job, str | None], None] | None = None,
 ) -> tuple[Path, list[str]]:
-    """Run the study into ``out``; returns REPORT.md's path and the failed runs' messages."""
+    """Run the study into ``out``; returns REPORT.md's path and the failed runs' messages.
+    Refused (:class:`~imagine.errors.FolderInUse`) while another process runs one there."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out, notice=log):
+        return _run_study(config, out, log, on_start, on_done)
+
+
+def _run_study(
+    config: StudyConfig,
+    out: Path,
+    log: Callable[[str], None],
+    on_start: Callable[[Job], None] | None,
+    on_done: Callable[[Job, str | None], None] | None,
+) -> tuple[Path, list[str]]:
+    """:func:`reproduce` once ``out`` is locked."""
     saved = out / "study.yaml"
     mine = dataclasses.asdict(config)
     if saved.is_file():
