@@ -90,6 +90,14 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "imagination_epsilon": 0.2,
         },
     ),
+    "augmented, mode, N_I = 3 imagined C updates per step": (
+        "augmented",
+        {**PAPER_READING, "imagination_draw": "mode", "n_imaginary_updates": 3},
+    ),
+    "baseline, 3 real C updates in place of the 3 imagined ones from I_start": (
+        "baseline",
+        {"imagination_start": 1000, "real_in_place_of_imagined": True, "n_imaginary_updates": 3},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
