@@ -195,6 +195,27 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
     return "\n".join(lines)
 
 
+def iqm_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
+              budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
+    """Success % per setting, task and budget as IQM [95% bootstrap interval] over the seeds."""
+    from imagine.report import iqm_interval
+
+    head = [f"{t} {b}" for t in tasks for b in budgets]
+    lines = ["| setting (IQM [95% CI]) | " + " | ".join(head) + " |",
+             "| --- " * (len(head) + 1) + "|"]  # fmt: skip
+    for setting in settings:
+        rows = load_evaluations(jobs_of(setting, out, tasks, seeds, budgets, vae))
+        cells = []
+        for t in tasks:
+            for b in budgets:
+                x = np.array(
+                    [100 * r["success"] for r in rows if r["task"] == t and r["budget"] == b]
+                )
+                cells.append("{:.1f} [{:.1f}, {:.1f}]".format(*iqm_interval(x)) if len(x) else "-")
+        lines.append(f"| {SHORT[setting]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vae", required=True)
@@ -224,6 +245,8 @@ def main() -> None:
             on_done=lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
         )
     print(table(settings, args.out, tasks, args.seeds, budgets, args.vae))
+    print()
+    print(iqm_table(settings, args.out, tasks, args.seeds, budgets, args.vae))
 
 
 if __name__ == "__main__":
