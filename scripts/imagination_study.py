@@ -9,6 +9,9 @@ non-terminal transitions at the last budget.
     .venv/bin/python scripts/imagination_study.py --vae runs/vae-fast --out runs/study14 \\
         [--settings baseline,sample,mu,...] [--seeds 5] [--budgets 1000,2000] [--workers 2]
 
+``--vae oracle`` runs the same settings on the true state (the oracle encoder): not a result
+for the method with V, a diagnosis of what V costs.
+
 Finished runs are read back; a stopped study resumes (it is `imagine reproduce`'s job machinery).
 Every setting spells out the fields it tests, so it means the same whatever the preset's defaults.
 """
@@ -113,7 +116,8 @@ def jobs_of(setting: str, out: Path, tasks: list[str], seeds: int, budgets: tupl
             method,
             seed,
             budgets,
-            vae_run=vae,
+            encoder="oracle" if vae == "oracle" else "vae",
+            vae_run=None if vae == "oracle" else vae,
             overrides=fields,
         )
         for task in tasks
@@ -218,7 +222,9 @@ def iqm_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--vae", required=True)
+    parser.add_argument(
+        "--vae", required=True, help="V run folder, or 'oracle' for the true state (a diagnosis)"
+    )
     parser.add_argument("--out", type=Path, default=Path("runs/study14"))
     parser.add_argument(
         "--settings",
