@@ -15,11 +15,11 @@ so the members' differences stay in what C is handed instead of being averaged a
 of two modes that name different macrostates names neither). Every imagined transition carries
 the members' disagreement about it, from the K modes m_k of its next state:
 
-    disagreement = (1/K) sum_k || m_k - (1/K) sum_j m_j ||_2  /  s,
+    disagreement = (1 / (K (K - 1))) sum_{j != k} || m_j - m_k ||_2  /  s,
 
 s the mean of V's posterior sigma over its active dimensions at the rollout's start
-(:func:`posterior_scale`): how far apart the members put the next state, in units of how far
-apart V itself cannot tell states. 0 with one member. A detector of wrong transitions that needs
+(:func:`posterior_scale`): how far apart two members put the next state, on average, in units
+of V's own uncertainty about a state. 0 with one member or members that agree. A detector of wrong transitions that needs
 no labels: ``imagine evaluate`` reports its AUROC.
 """
 

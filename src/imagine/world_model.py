@@ -213,10 +213,15 @@ def mixture_mode(m: Mixture) -> torch.Tensor:
 
 def members_spread(modes: torch.Tensor) -> torch.Tensor:
     """The members' disagreement about each row, from their modes (..., K, N, D): the mean
-    over members of the Euclidean distance from a member's mode to the members' mean mode,
-    (1/K) sum_k ||m_k - (1/K) sum_j m_j||_2, (..., N). Exactly 0 for one member or identical
-    members."""
-    return (modes - modes.mean(-3, keepdim=True)).norm(dim=-1).mean(-2)
+    Euclidean distance between two members' modes, (1 / (K (K - 1))) sum_{j != k}
+    ||m_j - m_k||_2, (..., N); 0 for one member. Pairwise rather than to the members' mean
+    mode, whose rounding would leave identical members a little apart: here they are exactly
+    0 apart."""
+    K = modes.shape[-3]
+    if K == 1:
+        return modes.new_zeros(modes.shape[:-3] + modes.shape[-2:-1])
+    pairs = (modes.unsqueeze(-3) - modes.unsqueeze(-4)).norm(dim=-1)  # (..., K, K, N)
+    return pairs.sum((-3, -2)) / (K * (K - 1))
 
 
 class StackedMDN(nn.Module):
@@ -308,6 +313,7 @@ class PopulationWorldModel(nn.Module):
         return mixture_from_heads(*heads, self.latent_dim, self.min_sigma,
                                   z if self.residual else None)  # fmt: skip
 
+    @torch.no_grad()
     def member_modes(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Every member's most likely next state for latents (P, N, D) and actions (P, N):
         (P, K, N, D)."""
