@@ -19,8 +19,8 @@ the members' disagreement about it, from the K modes m_k of its next state:
 
 s the mean of V's posterior sigma over its active dimensions at the rollout's start
 (:func:`posterior_scale`): how far apart two members put the next state, on average, in units
-of V's own uncertainty about a state. 0 with one member or members that agree. A detector of wrong transitions that needs
-no labels: ``imagine evaluate`` reports its AUROC.
+of V's own uncertainty about a state; 0 with one member or members that agree. A detector of
+wrong transitions that needs no labels: ``imagine evaluate`` reports its AUROC.
 """
 
 from __future__ import annotations

@@ -17,6 +17,11 @@ The MDN's loss is the negative log-likelihood of equation (6),
 measurements use); :class:`PopulationWorldModel` is the M of P agents trained together (weights
 with a leading agent axis, :mod:`imagine.stacked`), each with its own dropout masks, latent
 re-sampling noise and Adam state.
+
+An agent's M may hold an ensemble of K MDNs (``model_ensemble``; PETS, Chua et al. 2018, and
+MBPO, Janner et al. 2019): K independently initialized members, each trained on its own
+bootstrap batch, whose disagreement about a next state (:func:`members_spread`) says where M
+does not know. The paper's M is K = 1.
 """
 
 from __future__ import annotations
@@ -309,7 +314,8 @@ class PopulationWorldModel(nn.Module):
         x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
         return self.mdn(x, self._member_generators(generators))
 
-    def _mixture(self, heads, z: torch.Tensor) -> Mixture:
+    def _mixture(self, heads: Sequence[torch.Tensor], z: torch.Tensor) -> Mixture:
+        """The mixtures from heads' outputs; ``z``: the rows' states, for a residual M."""
         return mixture_from_heads(*heads, self.latent_dim, self.min_sigma,
                                   z if self.residual else None)  # fmt: skip
 
