@@ -11,6 +11,10 @@ with the same number of threads. The last lines: peak memory of this process (it
 episodes through V (untrained weights; the cost does not depend on them).
 
     .venv/bin/python benchmarks/population_speed.py [--threads 1] [--steps 20]
+        [--presets fast,paper] [--set model_ensemble=5 ...]
+
+``--set KEY=VALUE`` changes a setting of every agent (as `imagine train --set` does), e.g. the
+ensemble size K of M's MDN.
 """
 
 from __future__ import annotations
@@ -18,12 +22,13 @@ from __future__ import annotations
 import argparse
 import resource
 import time
+from typing import Any
 
 import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from imagine.config import agent_preset
+from imagine.config import agent_preset, parse_assignments
 from imagine.encoder import OracleEncoder
 from imagine.population import Population
 
@@ -37,12 +42,12 @@ def peak_flops(n: int = 2048, repeats: int = 5) -> float:
     return repeats * 2 * n**3 / (time.perf_counter() - start)
 
 
-def population(preset: str, agents: int) -> Population:
+def population(preset: str, agents: int, overrides: dict[str, Any] | None = None) -> Population:
     settings = {"encoder": "oracle", "method": "augmented", "imagination_start": 0,
-                "episodes": 10**6}  # fmt: skip
+                "episodes": 10**6, **(overrides or {})}  # fmt: skip
     configs = [agent_preset(preset, seed=seed, **settings) for seed in range(agents)]
     pop = Population(configs, OracleEncoder())
-    n, d = configs[0].model_batch, 8
+    n, d = configs[0].model_batch * configs[0].model_ensemble, 8
     for i in range(agents):  # M_R needs a batch's worth before the first update
         pop.real.add(
             i, mu=torch.randn(n, d), sigma=torch.full((n, d), 0.05),
@@ -67,14 +72,16 @@ def flops_of(fn) -> int:
     return counter.get_total_flops()
 
 
-def measure(preset: str, agents: int, steps: int, peak: float) -> dict[str, float]:
-    pop = population(preset, agents)
+def measure(
+    preset: str, agents: int, steps: int, peak: float, overrides: dict[str, Any] | None = None
+) -> dict[str, float]:
+    pop = population(preset, agents, overrides)
     c = pop.config
     pop.step()  # warm-up (and imagination memories filled)
     step_flops = flops_of(pop.step)
     step_s = timed(pop.step, steps)
     gens = list(pop.generators)
-    batch = pop.real.sample(c.model_batch, gens)
+    batch = pop.real.sample(c.model_batch * c.model_ensemble, gens)
     update_flops = flops_of(lambda: pop.model.update(batch, gens))
     update_s = timed(lambda: pop.model.update(batch, gens), max(steps, 5))
     return {
@@ -118,19 +125,25 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--agents", default="1,5,20")
+    parser.add_argument("--presets", default="fast,paper")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of every agent, e.g. model_ensemble=5")  # fmt: skip
     args = parser.parse_args()
+    overrides = parse_assignments(args.set)
     torch.set_num_threads(args.threads)
     peak = peak_flops()
     print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
+    if overrides:
+        print("settings: " + ", ".join(f"{k}={v}" for k, v in overrides.items()))
     print(
         "| preset | agents | agent steps/s | ms per lockstep step | M update ms | "
         "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
-    for preset in ("fast", "paper"):
+    for preset in args.presets.split(","):
         for agents in (int(a) for a in args.agents.split(",")):
             steps = args.steps if preset == "fast" else 2
-            m = measure(preset, agents, steps, peak)
+            m = measure(preset, agents, steps, peak, overrides)
             cells = [preset, str(agents), f"{m['steps_per_s']:.1f}", f"{m['step_ms']:.1f}",
                      f"{m['m_update_ms']:.1f}", f"{100 * m['m_share']:.0f}%",
                      f"{100 * m['m_peak']:.0f}%", f"{100 * m['step_peak']:.0f}%",

@@ -194,6 +194,11 @@ class RuleModel:
     def mode(self, z, action):
         return self._next(z, action)
 
+    def predict(self, z, action, generators, draw):
+        from imagine.world_model import Prediction
+
+        return Prediction(self._next(z, action), torch.zeros(z.shape[:-1]))
+
     def _states(self, z):
         return self.encoder.classify(z.reshape(-1, z.shape[-1])).numpy()
 

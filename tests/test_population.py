@@ -31,6 +31,7 @@ def assert_same_agent(a, b):
 @pytest.mark.parametrize("overrides", [
     {},  # smoke: the paper's 50% dropout in M, so dropout masks are per agent too
     {"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
+    {"model_ensemble": 2},  # members' bootstrap batches, dropout masks and draws per agent
 ])  # fmt: skip
 def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
     settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,

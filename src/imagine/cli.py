@@ -323,7 +323,8 @@ def evaluate_agent(
 ) -> None:
     """Run greedy test episodes (batched) and print the success rate with its 95% interval, M's
     accuracy over all 192 x 6 true transitions, and how right the transitions are that M
-    imagines for C (judged by V's latent classifier)."""
+    imagines for C (judged by V's latent classifier); for an ensemble M, how well its members'
+    disagreement detects the wrong ones (AUROC)."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
     from imagine.evaluate import greedy_success, imagined_accuracy, model_accuracy
@@ -337,9 +338,11 @@ def evaluate_agent(
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
+    detection = None if imagined is None else imagined.get("disagreement_auroc")
     write_json(run / "evaluation.json", {
         "after_episodes": agent.episode, **result, "model_accuracy": accuracy,
-        "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other})  # fmt: skip
+        "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other,
+        "imagined_disagreement_auroc": detection})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
@@ -354,6 +357,11 @@ def evaluate_agent(
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined))  # fmt: skip
     print(f"the same M with imagination_draw={other}: state {{state:.1%}}, reward "
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip
+    if detection is not None:
+        print(f"disagreement of M's {agent.config.model_ensemble} members as a detector of wrong "
+              "imagined states: AUROC {disagreement_auroc:.3f}; state right in the most-agreed "
+              "half {state_agreed_half:.1%}, in the rest {state_disagreed_half:.1%}"
+              .format(**imagined))  # fmt: skip
 
 
 @app.command("plan")

@@ -277,6 +277,10 @@ class AgentConfig:
     """Adam learning rate of M's networks."""
     n_components: int = 5
     """Gaussians in the MDN."""
+    model_ensemble: int = 1
+    """K: members of M's MDN per agent (PETS, MBPO), each with its own initialization and its
+    own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
+    drawn per step and logs the members' disagreement. 1: one MDN (the paper)."""
     dropout: float = 0.5
     """Dropout in M's networks."""
     reward_hidden: int = 512
@@ -317,8 +321,8 @@ class AgentConfig:
         positive = ("episodes", "real_batch", "imaginary_batch", "real_memory",
                     "imaginary_memory", "model_batch", "imagination_breadth",
                     "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
-                    "eval_episodes", "n_components", "controller_lr", "model_lr",
-                    "reward_hidden")  # fmt: skip
+                    "eval_episodes", "n_components", "model_ensemble", "controller_lr",
+                    "model_lr", "reward_hidden")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")

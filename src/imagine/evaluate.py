@@ -8,8 +8,9 @@ import math
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
+from scipy.stats import rankdata
 
-from imagine.controller import Controller
+from imagine.controller import Controller, PopulationController
 from imagine.env.rules import (
     N_ACTIONS,
     REWARD_GOAL,
@@ -22,7 +23,8 @@ from imagine.env.rules import (
     rewards,
 )
 from imagine.env.vector import GesturePuzzleVectorEnv
-from imagine.world_model import WorldModel
+from imagine.imagination import imagine_rollouts, posterior_scale
+from imagine.world_model import PopulationWorldModel, WorldModel
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -86,6 +88,8 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
       (component, then Gaussian; fixed seed): what imagination consumes.
     - ``reward`` / ``terminal``: over those same transitions, how often r (rounded to the nearest
       of +50, -5, -1) and d are right at the true next state's latent.
+
+    With an ensemble of MDNs (``model_ensemble`` > 1) these judge its first member.
     """
     states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
     actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
@@ -144,15 +148,16 @@ def imagined_accuracy(
     are those of that true successor; ``first_step``: ``state`` on first steps only;
     ``transitions``: how many were judged. ``model``: a population-form M to judge instead of
     the agent's; ``draw``: ``sample`` or ``mode`` in place of the agent's ``imagination_draw``
-    (the same M judged both ways)."""
-    from imagine.controller import PopulationController
-    from imagine.imagination import imagine_rollouts
-    from imagine.world_model import PopulationWorldModel
+    (the same M judged both ways).
 
+    With an ensemble of K > 1 MDNs, the members' disagreement as a detector of wrong imagined
+    states (:func:`disagreement_detection`): ``disagreement_auroc``, ``disagreement_mean``,
+    ``state_agreed_half`` and ``state_disagreed_half``."""
     c = agent.config
     envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
     obs, info = envs.reset(seed=seed)
     mu, sigma = agent.encoder.encode(obs, info["macrostate"])
+    scale = posterior_scale(sigma).repeat_interleave(c.imagination_breadth).unsqueeze(0)
     if c.model_latents == "mu":
         sigma = torch.zeros_like(sigma)
     if model is None:
@@ -164,7 +169,7 @@ def imagined_accuracy(
     rollout = imagine_rollouts(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
-        [generator], draw=draw or c.imagination_draw,
+        [generator], draw=draw or c.imagination_draw, scale=scale,
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())
@@ -180,4 +185,34 @@ def imagined_accuracy(
     }
     out = {key: float(values.mean()) for key, values in judged.items()}
     out["transitions"] = float(len(right))
+    if c.model_ensemble > 1:
+        out |= disagreement_detection(rollout["disagreement"].numpy(), right)
     return out
+
+
+def auroc(scores: np.ndarray, positive: np.ndarray) -> float:
+    """The area under the ROC curve of ``scores`` as a detector of ``positive``: the chance
+    that a random positive scores above a random negative (ties count one half), from the
+    ranks (the Mann-Whitney U statistic over n_pos * n_neg). NaN without both classes."""
+    positive = np.asarray(positive, dtype=bool)
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(scores)  # ties get their mean rank
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def disagreement_detection(disagreement: np.ndarray, right: np.ndarray) -> dict[str, float]:
+    """How well the members' disagreement, which needs no labels, tells wrong imagined states
+    (judged by V's classifier) from right ones: ``disagreement_auroc`` (1: every wrong one
+    above every right one; 0.5: no better than chance), ``disagreement_mean``, and the state
+    accuracy of the half of the transitions the members agree on most
+    (``state_agreed_half``) and of the rest (``state_disagreed_half``)."""
+    order = np.argsort(disagreement, kind="stable")
+    agreed, rest = order[: len(order) // 2], order[len(order) // 2 :]
+    return {
+        "disagreement_auroc": auroc(disagreement, ~right),
+        "disagreement_mean": float(disagreement.mean()),
+        "state_agreed_half": float(right[agreed].mean()) if len(agreed) else float("nan"),
+        "state_disagreed_half": float(right[rest].mean()) if len(rest) else float("nan"),
+    }

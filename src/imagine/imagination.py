@@ -8,6 +8,19 @@ steps. M imagines without dropout.
 
 Every agent of a population imagines at once; an agent draws from its own generator, and only
 while one of its rollouts is still going, so its rollouts are those it would imagine alone.
+
+With an ensemble of K MDNs per agent (``model_ensemble``), each rollout follows a member drawn
+uniformly at each step (PETS's TS1 propagation, Chua et al. 2018; MBPO, Janner et al. 2019),
+so the members' differences stay in what C is handed instead of being averaged away (the mean
+of two modes that name different macrostates names neither). Every imagined transition carries
+the members' disagreement about it, from the K modes m_k of its next state:
+
+    disagreement = (1 / (K (K - 1))) sum_{j != k} || m_j - m_k ||_2  /  s,
+
+s the mean of V's posterior sigma over its active dimensions at the rollout's start
+(:func:`posterior_scale`): how far apart two members put the next state, on average, in units
+of V's own uncertainty about a state; 0 with one member or members that agree. A detector of
+wrong transitions that needs no labels: ``imagine evaluate`` reports its AUROC.
 """
 
 from __future__ import annotations
@@ -20,7 +33,21 @@ from imagine.controller import PopulationController
 from imagine.stacked import agent_normal
 from imagine.world_model import PopulationWorldModel
 
-FIELDS = ("z", "action", "next_z", "reward", "done")
+FIELDS = ("z", "action", "next_z", "reward", "done", "disagreement")
+"""What a rollout hands back per transition: M_I's fields, then the members' disagreement."""
+
+ACTIVE_SIGMA = 0.5
+"""A latent dimension V uses has a posterior sigma well below the prior's 1; a collapsed one
+keeps sigma near 1 and carries no information (:mod:`imagine.vision_report`)."""
+
+
+def posterior_scale(sigma: torch.Tensor) -> torch.Tensor:
+    """The unit of disagreement for posteriors (..., D): the mean of sigma over the active
+    dimensions (sigma < :data:`ACTIVE_SIGMA`), over all when none is; (...)."""
+    active = sigma < ACTIVE_SIGMA
+    count = active.sum(-1)
+    mean_active = (sigma * active).sum(-1) / count.clamp(min=1)
+    return torch.where(count > 0, mean_active, sigma.mean(-1)).clamp(min=1e-6)
 
 
 @torch.no_grad()
@@ -34,19 +61,24 @@ def imagine_rollouts(
     eps: Sequence[float],
     generators: Sequence[torch.Generator | None],
     draw: str = "sample",
+    scale: torch.Tensor | None = None,
 ) -> list[dict[str, torch.Tensor] | None]:
-    """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done)``
-    of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
+    """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
+    disagreement)`` of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
     ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), or of one rollout from each of
     ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order imagined;
     None for agents without one. ``draw``: each next state a sample of M's mixture (the
-    paper), or its mode (the mean of the heaviest component)."""
+    paper), or its mode (the mean of the heaviest component). ``scale``: the unit of
+    disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
+    ``sigma`` (pass V's own when ``sigma`` is not V's)."""
     if mu.dim() == 2:
         mu, sigma = mu.unsqueeze(1), sigma.unsqueeze(1)
     else:
         breadth = mu.shape[1]
     P, _, D = mu.shape
     shape = (P, breadth, D)
+    unit = posterior_scale(sigma) if scale is None else scale.view(P, -1)
+    unit = unit.expand(P, breadth)
     z = agent_normal(mu.expand(shape), sigma.expand(shape), generators)
     going = torch.tensor([g is not None for g in generators], device=mu.device)
     alive = going.unsqueeze(1).expand(P, breadth).clone()
@@ -56,9 +88,10 @@ def imagine_rollouts(
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing)
-        next_z = model.mode(z, action) if draw == "mode" else model.sample(z, action, drawing)
+        next_z, spread = model.predict(z, action, drawing, draw)
         done = model.is_terminal(next_z)
-        steps.append((z, action, next_z, model.predict_reward(next_z), done.float()))
+        reward = model.predict_reward(next_z)
+        steps.append((z, action, next_z, reward, done.float(), spread / unit))
         kept.append(alive.clone())
         alive &= ~done
         going &= alive.any(-1)

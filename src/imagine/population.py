@@ -45,7 +45,7 @@ from imagine.controller import Controller, PopulationController, epsilon
 from imagine.env.rules import REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
-from imagine.imagination import imagine_rollouts
+from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent
 from imagine.world_model import PopulationWorldModel, WorldModel
@@ -69,7 +69,8 @@ def new_networks(config: AgentConfig, latent_dim: int) -> tuple[Controller, Worl
     controller = Controller(latent_dim)
     model = WorldModel(latent_dim, n_components=config.n_components, dropout=config.dropout,
                        reward_hidden=config.reward_hidden,
-                       residual=config.model_residual)  # fmt: skip
+                       residual=config.model_residual,
+                       ensemble=config.model_ensemble)  # fmt: skip
     return controller, model
 
 
@@ -152,7 +153,8 @@ class Population:
             done=torch.as_tensor(terminated[live], dtype=torch.float32),
         )  # fmt: skip
         for _ in range(c.model_updates if c.trains_model else 0):
-            batch = self.real.sample(c.model_batch, gens)
+            # K bootstrap batches, one per member of the MDN (PETS); one batch for K = 1
+            batch = self.real.sample(c.model_batch * c.model_ensemble, gens)
             losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
@@ -225,17 +227,21 @@ class Population:
             return
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
         mu, sigma = self._imagination_starts(gens)
+        scale = posterior_scale(sigma)  # V's, before M's inputs lose it
         if c.model_latents == "mu":
             sigma = torch.zeros_like(sigma)
         if c.imagination_epsilon >= 0:
             eps = [c.imagination_epsilon] * self.size
         rollouts = imagine_rollouts(
             self.model, self.controller, mu, sigma, c.imagination_breadth,
-            c.imagination_depth, eps, gens, draw=c.imagination_draw,
+            c.imagination_depth, eps, gens, draw=c.imagination_draw, scale=scale,
         )  # fmt: skip
         for i in imagining:
+            disagreement = rollouts[i].pop("disagreement")
             self.imaginary.add(i, **rollouts[i])
             self._episode[i].imagined += len(rollouts[i]["z"])
+            if c.model_ensemble > 1:
+                self._episode[i].add_disagreement(float(disagreement.sum()))
         rows = torch.as_tensor(imagining, device=self.device)
         for _ in range(c.n_imaginary_updates):
             b = self.imaginary.sample(c.imaginary_batch, gens)
@@ -287,7 +293,7 @@ class Population:
         """Copies of agent ``agent``'s C and M as single-agent modules (on the CPU)."""
         controller, model = copy.deepcopy(self.templates)
         export_agent(self.controller.q, agent, controller.q.to(self.device))
-        export_agent(self.model, agent, model.to(self.device))
+        self.model.export_agent(agent, model.to(self.device))
         return controller.cpu().eval(), model.cpu().eval()
 
     def save(self, agent: int, folder: Path, window: dict[str, list[float]] | None = None) -> None:
@@ -334,7 +340,7 @@ class Population:
         load_state_dict_strict(controller, part(tensors, "controller"), where)
         load_state_dict_strict(model, part(tensors, "model"), where)
         import_agent(self.controller.q, agent, controller.q.to(self.device))
-        import_agent(self.model, agent, model.to(self.device))
+        self.model.import_agent(agent, model.to(self.device))
         if self.controller.target is not None:
             load_state_dict_strict(controller.q, part(tensors, "controller_target"), where)
             import_agent(self.controller.target, agent, controller.q.to(self.device))
@@ -364,6 +370,8 @@ class EpisodeTotals:
     length: int = 0
     success: bool = False
     imagined: int = 0
+    disagreement: float | None = None
+    """Sum of M's members' disagreement over the imagined transitions (None: one member)."""
     eps: float = 0.0
 
     def add(self, reward: float, eps: float) -> None:
@@ -372,7 +380,13 @@ class EpisodeTotals:
         self.success |= reward == REWARD_GOAL
         self.eps = eps
 
+    def add_disagreement(self, total: float) -> None:
+        self.disagreement = (self.disagreement or 0.0) + total
+
     def stats(self) -> dict[str, float]:
-        return {"charts/return": self.total, "charts/success": float(self.success),
-                "charts/episode_length": float(self.length), "charts/epsilon": self.eps,
-                "charts/imagined_transitions": float(self.imagined)}  # fmt: skip
+        out = {"charts/return": self.total, "charts/success": float(self.success),
+               "charts/episode_length": float(self.length), "charts/epsilon": self.eps,
+               "charts/imagined_transitions": float(self.imagined)}  # fmt: skip
+        if self.disagreement is not None and self.imagined:
+            out["charts/imagined_disagreement"] = self.disagreement / self.imagined
+        return out

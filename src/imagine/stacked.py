@@ -159,13 +159,31 @@ class PopulationAdam:
     agent has its own moments and its own step count (the bias correction), exactly as with an
     Adam of its own. :meth:`step` takes the agents that update; the others' slices, moments and
     step counts stay as they are.
+
+    ``members[j]``: the rows parameter j has per agent (default 1). An ensemble of K networks
+    per agent is stacked agent-major, row ``i * K + k`` for agent i's member k; its members
+    step together, as one agent's.
     """
 
-    def __init__(self, params: Iterable[nn.Parameter], agents: int, lr: float) -> None:
+    def __init__(
+        self,
+        params: Iterable[nn.Parameter],
+        agents: int,
+        lr: float,
+        members: Sequence[int] | None = None,
+    ) -> None:
         self.params = list(params)
         self.lr = lr
+        counts = [1] * len(self.params) if members is None else list(members)
+        # agent i's slices: member 0 of every parameter, then the other members, so that an
+        # agent with one member keeps the state indices (checkpoint keys) it always had
+        self.rows = [
+            [(j, i * m) for j, m in enumerate(counts)]
+            + [(j, i * m + k) for k in range(1, max(counts)) for j, m in enumerate(counts) if k < m]
+            for i in range(agents)
+        ]
         # detach(): the slices are leaves sharing the parameters' storage
-        self.slices = [[p.detach()[i] for p in self.params] for i in range(agents)]
+        self.slices = [[self.params[j].detach()[r] for j, r in rows] for rows in self.rows]
         self.optimizer = torch.optim.Adam(
             [s for agent in self.slices for s in agent], lr=lr, fused=True
         )
@@ -177,9 +195,10 @@ class PopulationAdam:
     def step(self, agents: Sequence[int]) -> None:
         """One Adam step for ``agents`` from the gradients of the stacked parameters."""
         chosen = set(agents)
-        for i, agent in enumerate(self.slices):
-            for p, s in zip(self.params, agent, strict=True):
-                s.grad = p.grad[i] if i in chosen and p.grad is not None else None
+        for i, (rows, agent) in enumerate(zip(self.rows, self.slices, strict=True)):
+            for (j, row), s in zip(rows, agent, strict=True):
+                grad = self.params[j].grad
+                s.grad = grad[row] if i in chosen and grad is not None else None
         self.optimizer.step()
 
     def agent_state(self, agent: int, prefix: str) -> dict[str, torch.Tensor]:
