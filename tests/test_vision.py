@@ -210,3 +210,17 @@ def test_report_scores_fresh_images_from_the_training_pool(tmp_path):
     config = with_dataset(vision_preset("smoke", batch_size=32), path)
     fresh = fresh_images_config(config)
     assert (fresh.fragment_seed, fresh.n_cube_fragments, fresh.seed) == (5, 3, 5)
+
+
+def test_an_images_latent_does_not_depend_on_its_batch():
+    """A lone image (an agent alone, or the last of a population) gets bit for bit the latent
+    it gets among others: ulp differences change a training run after hundreds of episodes."""
+    torch.manual_seed(0)
+    vae = ConvVAE()
+    images = np.random.default_rng(0).integers(0, 256, (5, 64, 64, 3), dtype=np.uint8)
+    together, sigma_together = encode_images(vae, images)
+    for i in range(5):
+        alone, sigma_alone = encode_images(vae, images[i : i + 1])
+        assert torch.equal(alone[0], together[i]) and torch.equal(sigma_alone[0], sigma_together[i])
+    last, _ = encode_images(vae, images, batch_size=4)  # a last chunk of one
+    assert torch.equal(last, together)

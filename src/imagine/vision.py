@@ -114,14 +114,23 @@ def vae_loss(
 def encode_images(
     vae: ConvVAE, images: np.ndarray, batch_size: int = 1000
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(mu, sigma) for uint8 observations (N, 64, 64, 3), in batches, in eval mode."""
+    """(mu, sigma) for uint8 observations (N, 64, 64, 3), in batches, in eval mode.
+
+    An image's latent does not depend on the batch it comes in: PyTorch's CPU convolution takes
+    another path for a batch of one, whose results differ in the last bits (1e-7), enough to
+    change a training run after hundreds of episodes; so a lone image is encoded beside a copy
+    of itself. A population's agents then see what they would see alone."""
     was_training = vae.training
     vae.eval()
     mus, sigmas = [], []
+    device = next(vae.parameters()).device
     for start in range(0, len(images), batch_size):
-        device = next(vae.parameters()).device
-        mu, sigma = vae.encode(to_input(images[start : start + batch_size]).to(device))
-        mus.append(mu)
-        sigmas.append(sigma)
+        chunk = images[start : start + batch_size]
+        lone = len(chunk) == 1
+        if lone:
+            chunk = np.concatenate([chunk, chunk])
+        mu, sigma = vae.encode(to_input(chunk).to(device))
+        mus.append(mu[:1] if lone else mu)
+        sigmas.append(sigma[:1] if lone else sigma)
     vae.train(was_training)
     return torch.cat(mus), torch.cat(sigmas)
