@@ -295,3 +295,29 @@ def test_evaluate_reports_what_the_gate_accepts_and_how_right_it_is(gated_run, c
     assert out["gate_threshold"] > 0 and not math.isnan(out["state_rejected"])
     evaluate_agent(folder, episodes=10, seed=0)
     assert "gate mask at q 0.5, scale 1.0: threshold" in capsys.readouterr().out
+
+
+def test_a_gated_agent_in_a_population_gates_as_it_does_alone():
+    settings = {"encoder": "oracle", "imagination_start": 0, "imagination_depth": 4,
+                "model_ensemble": 2, "imagination_gate": "random",
+                "imagination_gate_quantile": 0.5, "imagination_adaptive": True,
+                "imagination_trust_floor": 0.0, "n_imaginary_updates": 3}  # fmt: skip
+    configs = [agent_preset("smoke", seed=s, **settings) for s in (3, 4)]
+    together = Population(configs, OracleEncoder())
+    alone = [Population([c], OracleEncoder()) for c in configs]
+    for _ in range(15):
+        for p in (together, *alone):
+            p.step()
+    for i, p in enumerate(alone):
+        # C's updates: 15 real ones, and imaginary ones as many as each acceptance allows
+        assert 15 < int(together.controller.updates[i]) == int(p.controller.updates[0])
+        assert together.trust.acceptance[i] == p.trust.acceptance[0]
+        assert together.imaginary.added[i] == p.imaginary.added[0]
+        assert torch.equal(together.trust.threshold(i), p.trust.threshold(0))
+        for name, value in p.imaginary.data.items():
+            assert torch.equal(together.imaginary.data[name][i], value[0]), name
+        controller, _ = together.networks(i)
+        for (name, w), v in zip(controller.state_dict().items(),
+                                p.networks(0)[0].state_dict().values(), strict=True):  # fmt: skip
+            assert torch.equal(w, v), name
+    assert together.trust.acceptance[0] != together.trust.acceptance[1]
