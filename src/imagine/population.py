@@ -220,7 +220,10 @@ class Population:
             self._record(key, loss, rows)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
-        """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""
+        """Lines 17-19 for the agents past their I_start: imagine, store in M_I what the
+        agent's gate keeps (all without one), make N_I updates of C on M_I (with
+        ``imagination_adaptive``, as many as its acceptance and M's trust allow;
+        :mod:`imagine.gate`)."""
         c = self.config
         if c.method != "augmented":
             return
@@ -405,6 +408,7 @@ class EpisodeTotals:
     length: int = 0
     success: bool = False
     imagined: int = 0
+    """Transitions imagined, before any gate."""
     disagreement: float | None = None
     """Sum of M's members' disagreement over the imagined transitions (None: one member)."""
     accepted: int | None = None
