@@ -84,8 +84,10 @@ def gate_transitions(
     if rule == "mask":
         return ~over
     if rule == "stop":  # kept while no transition of its rollout so far is over the threshold
-        depth = int(step.max()) + 1 if len(step) else 0
-        first_over = torch.full((int(rollout.max()) + 1 if len(rollout) else 0,), depth,
+        if len(step) == 0:
+            return ~over
+        # each rollout's first step over the threshold; past the last step for one never over
+        first_over = torch.full((int(rollout.max()) + 1,), int(step.max()) + 1,
                                 dtype=step.dtype, device=step.device)  # fmt: skip
         first_over.scatter_reduce_(0, rollout[over], step[over], "amin")
         return step < first_over[rollout]
