@@ -324,7 +324,8 @@ def evaluate_agent(
     """Run greedy test episodes (batched) and print the success rate with its 95% interval, M's
     accuracy over all 192 x 6 true transitions, and how right the transitions are that M
     imagines for C (judged by V's latent classifier); for an ensemble M, how well its members'
-    disagreement detects the wrong ones (AUROC)."""
+    disagreement detects the wrong ones (AUROC), and how right the transitions its gate
+    accepts and rejects are."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
     from imagine.evaluate import greedy_success, imagined_accuracy, model_accuracy
@@ -362,6 +363,12 @@ def evaluate_agent(
               "imagined states: AUROC {disagreement_auroc:.3f}; state right in the most-agreed "
               "half {state_agreed_half:.1%}, in the rest {state_disagreed_half:.1%}"
               .format(**imagined))  # fmt: skip
+        gate = agent.config.imagination_gate
+        rule = f"gate {gate}" if gate != "none" else "gate mask (the agent has none)"
+        print(f"{rule} at q {agent.config.imagination_gate_quantile}, scale "
+              f"{agent.config.imagination_gate_scale}: threshold {{gate_threshold:.3f}}, accepts "
+              "{accepted:.1%}; state right in the accepted {state_accepted:.1%}, in the rejected "
+              "{state_rejected:.1%}".format(**imagined))  # fmt: skip
 
 
 @app.command("plan")

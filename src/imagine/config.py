@@ -24,6 +24,8 @@ import yaml
 from imagine.errors import ConfigError
 
 PRESETS = ("paper", "fast", "smoke")
+GATES = ("none", "stop", "mask", "random")
+"""The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
 
 
 @dataclass(frozen=True)
@@ -285,6 +287,26 @@ class AgentConfig:
     """Dropout in M's networks."""
     reward_hidden: int = 512
     """Units in each of the r-network's 3 hidden layers (paper: 512)."""
+    imagination_gate: str = "none"
+    """Which imagined transitions reach M_I, by the members' disagreement u against
+    tau = imagination_gate_scale * quantile_q(first-step u of the agent's recent rollouts)
+    (:mod:`imagine.gate`; needs model_ensemble >= 2): stop (MACURA: a rollout ends at its first
+    u > tau, that transition not kept), mask (M2AC: each u > tau dropped), random (the control:
+    as many as mask drops, chosen at random) or none (all kept; the paper)."""
+    imagination_gate_quantile: float = 0.95
+    """q of the gate's threshold, in (0, 1]."""
+    imagination_gate_scale: float = 1.0
+    """Factor of the gate's threshold (> 0): tau = scale * quantile_q."""
+    imagination_gate_window: int = 1000
+    """Recent rollouts whose first-step disagreements set the gate's threshold."""
+    imagination_adaptive: bool = False
+    """Scale N_I with the agent's running acceptance a of its gate (N_I * a, rounded half up;
+    a = 1 without a gate), and make no imaginary update while M is not trusted: while fewer
+    than imagination_trust_floor of its one-step modes on the newest real transitions land
+    within 3 posterior sigmas of the observed next mu (:mod:`imagine.gate`)."""
+    imagination_trust_floor: float = 0.8
+    """Share of right one-step predictions on the newest real transitions below which an
+    adaptive agent makes no imaginary update, in [0, 1]."""
     imagination_start: int = 1000
     """I_start: first episode with imagined rollouts."""
     imagination_breadth: int = 3
@@ -312,7 +334,8 @@ class AgentConfig:
                    "encoder": ("vae", "oracle"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode"),
-                   "imagination_from": ("current", "memory")}  # fmt: skip
+                   "imagination_from": ("current", "memory"),
+                   "imagination_gate": GATES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(
@@ -322,7 +345,8 @@ class AgentConfig:
                     "imaginary_memory", "model_batch", "imagination_breadth",
                     "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
                     "eval_episodes", "n_components", "model_ensemble", "controller_lr",
-                    "model_lr", "reward_hidden")  # fmt: skip
+                    "model_lr", "reward_hidden", "imagination_gate_scale",
+                    "imagination_gate_window")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
@@ -337,6 +361,21 @@ class AgentConfig:
         if not (self.imagination_epsilon == -1.0 or 0.0 <= self.imagination_epsilon <= 1.0):
             raise ConfigError(
                 f"agent.imagination_epsilon must be in [0, 1] or -1, got {self.imagination_epsilon}"
+            )
+        if not 0.0 < self.imagination_gate_quantile <= 1.0:
+            raise ConfigError(
+                "agent.imagination_gate_quantile must be in (0, 1], got "
+                f"{self.imagination_gate_quantile}"
+            )
+        if self.imagination_gate != "none" and self.model_ensemble < 2:
+            raise ConfigError(
+                f"agent.imagination_gate {self.imagination_gate} needs the members' disagreement:"
+                f" set agent.model_ensemble >= 2 (got {self.model_ensemble})"
+            )
+        if not 0.0 <= self.imagination_trust_floor <= 1.0:
+            raise ConfigError(
+                "agent.imagination_trust_floor must be in [0, 1], got "
+                f"{self.imagination_trust_floor}"
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"agent.dropout must be in [0, 1), got {self.dropout}")

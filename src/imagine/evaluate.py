@@ -23,6 +23,7 @@ from imagine.env.rules import (
     rewards,
 )
 from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.gate import gate_threshold, gate_transitions
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.world_model import PopulationWorldModel, WorldModel
 
@@ -152,7 +153,12 @@ def imagined_accuracy(
 
     With an ensemble of K > 1 MDNs, the members' disagreement as a detector of wrong imagined
     states (:func:`disagreement_detection`): ``disagreement_auroc``, ``disagreement_mean``,
-    ``state_agreed_half`` and ``state_disagreed_half``."""
+    ``state_agreed_half`` and ``state_disagreed_half``; and the agent's gate
+    (``imagination_gate``; ``mask`` for an agent without one) applied to these transitions,
+    its threshold set by the first steps of these same rollouts, which stand in for the
+    agent's recent ones: ``accepted`` (the share kept), ``state_accepted`` and
+    ``state_rejected`` (``state`` over the kept and the dropped; NaN for none) and
+    ``gate_threshold``."""
     c = agent.config
     envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
     obs, info = envs.reset(seed=seed)
@@ -187,7 +193,29 @@ def imagined_accuracy(
     out["transitions"] = float(len(right))
     if c.model_ensemble > 1:
         out |= disagreement_detection(rollout["disagreement"].numpy(), right)
+        out |= gate_judgement(agent.config, rollout, right, generator)
     return out
+
+
+def gate_judgement(
+    config, rollout: dict[str, torch.Tensor], right: np.ndarray, generator: torch.Generator
+) -> dict[str, float]:
+    """What the gate of ``config`` (``mask`` for ``none``) keeps of one agent's imagined
+    transitions ``rollout``, and how right (``right``, per transition) the kept and the
+    dropped are; the threshold from these rollouts' first steps."""
+    rule = "mask" if config.imagination_gate == "none" else config.imagination_gate
+    disagreement = rollout["disagreement"]
+    threshold = gate_threshold(disagreement[rollout["step"] == 0],
+                               config.imagination_gate_quantile,
+                               config.imagination_gate_scale)  # fmt: skip
+    keep = gate_transitions(rule, disagreement, rollout["rollout"], rollout["step"], threshold,
+                            generator).numpy()  # fmt: skip
+    return {
+        "accepted": float(keep.mean()),
+        "state_accepted": float(right[keep].mean()) if keep.any() else float("nan"),
+        "state_rejected": float(right[~keep].mean()) if (~keep).any() else float("nan"),
+        "gate_threshold": float(threshold),
+    }
 
 
 def auroc(scores: np.ndarray, positive: np.ndarray) -> float:

@@ -33,8 +33,10 @@ from imagine.controller import PopulationController
 from imagine.stacked import agent_normal
 from imagine.world_model import PopulationWorldModel
 
-FIELDS = ("z", "action", "next_z", "reward", "done", "disagreement")
-"""What a rollout hands back per transition: M_I's fields, then the members' disagreement."""
+FIELDS = ("z", "action", "next_z", "reward", "done", "disagreement", "rollout", "step")
+"""What a rollout hands back per transition: M_I's fields, the members' disagreement, and
+which of the agent's rollouts it belongs to and its step in it (what a gate needs,
+:mod:`imagine.gate`)."""
 
 ACTIVE_SIGMA = 0.5
 """A latent dimension V uses has a posterior sigma well below the prior's 1; a collapsed one
@@ -64,9 +66,10 @@ def imagine_rollouts(
     scale: torch.Tensor | None = None,
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
-    disagreement)`` of ``breadth`` rollouts of up to ``depth`` steps from its latent posterior
-    ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), or of one rollout from each of
-    ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order imagined;
+    disagreement, rollout, step)`` of ``breadth`` rollouts of up to ``depth`` steps from its
+    latent posterior ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), or of one rollout
+    from each of ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order
+    imagined (step by step, rollouts in order within a step);
     None for agents without one. ``draw``: each next state a sample of M's mixture (the
     paper), or its mode (the mean of the heaviest component). ``scale``: the unit of
     disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
@@ -84,14 +87,16 @@ def imagine_rollouts(
     alive = going.unsqueeze(1).expand(P, breadth).clone()
     steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
     kept: list[torch.Tensor] = []  # which rollouts were alive at each step
-    for _ in range(depth):
+    rollout = torch.arange(breadth, device=mu.device).expand(P, breadth)
+    for t in range(depth):
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing)
         next_z, spread = model.predict(z, action, drawing, draw)
         done = model.is_terminal(next_z)
         reward = model.predict_reward(next_z)
-        steps.append((z, action, next_z, reward, done.float(), spread / unit))
+        steps.append((z, action, next_z, reward, done.float(), spread / unit, rollout,
+                      torch.full_like(rollout, t)))  # fmt: skip
         kept.append(alive.clone())
         alive &= ~done
         going &= alive.any(-1)

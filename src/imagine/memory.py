@@ -130,6 +130,18 @@ class ReplayMemory:
         index = (self.position[agent] - n + torch.arange(n)) % self.capacity
         return {name: value[agent][index.to(value.device)] for name, value in self.data.items()}
 
+    def newest_each(self, n: int) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Every agent's ``n`` most recent slots, oldest first (fields (agents, n, ...)), and
+        which of them hold a transition (bool (agents, n); an agent with fewer has its
+        oldest slots empty)."""
+        device = next(iter(self.data.values())).device
+        position = torch.as_tensor(self.position, device=device).unsqueeze(1)
+        size = torch.as_tensor(self.size, device=device).unsqueeze(1)
+        back = n - torch.arange(n, device=device)  # how far back each slot is: n .. 1
+        index = (position - back) % self.capacity
+        rows = torch.arange(self.agents, device=device).unsqueeze(1)
+        return {name: value[rows, index] for name, value in self.data.items()}, back <= size
+
     def state_dict(self, prefix: str, agent: int = 0) -> dict[str, torch.Tensor]:
         """One agent's ring, as a single agent's memory checkpoint."""
         size = self.size[agent]

@@ -45,6 +45,7 @@ from imagine.controller import Controller, PopulationController, epsilon
 from imagine.env.rules import REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
+from imagine.gate import TRUST_RECENT, ModelTrust, imaginary_updates, one_step_right
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent
@@ -106,6 +107,7 @@ class Population:
         self.templates = copy.deepcopy(networks[0])  # single-agent modules for export
         self.real = ReplayMemory(c.real_memory, real_fields(d), P, self.device)
         self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)
+        self.trust = ModelTrust(c, P, self.device)
         self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
         self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
         self.envs.reset(seed=[x.seed for x in configs])
@@ -218,7 +220,10 @@ class Population:
             self._record(key, loss, rows)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
-        """Lines 17-19 for the agents past their I_start: imagine into M_I, learn from it."""
+        """Lines 17-19 for the agents past their I_start: imagine, store in M_I what the
+        agent's gate keeps (all without one), make N_I updates of C on M_I (with
+        ``imagination_adaptive``, as many as its acceptance and M's trust allow;
+        :mod:`imagine.gate`)."""
         c = self.config
         if c.method != "augmented":
             return
@@ -237,18 +242,47 @@ class Population:
             c.imagination_depth, eps, gens, draw=c.imagination_draw, scale=scale,
         )  # fmt: skip
         for i in imagining:
-            disagreement = rollouts[i].pop("disagreement")
-            self.imaginary.add(i, **rollouts[i])
-            self._episode[i].imagined += len(rollouts[i]["z"])
+            transitions = rollouts[i]
+            disagreement = transitions.pop("disagreement")
+            rollout, step = transitions.pop("rollout"), transitions.pop("step")
+            totals = self._episode[i]
+            totals.imagined += len(disagreement)
             if c.model_ensemble > 1:
-                self._episode[i].add_disagreement(float(disagreement.sum()))
-        rows = torch.as_tensor(imagining, device=self.device)
-        for _ in range(c.n_imaginary_updates):
+                totals.add_disagreement(float(disagreement.sum()))
+            if self.trust.on:
+                keep = self.trust.gate(i, disagreement, rollout, step, gens[i])
+                if c.imagination_gate != "none":
+                    transitions = {key: value[keep] for key, value in transitions.items()}
+                    totals.add_accepted(len(transitions["z"]))
+            self.imaginary.add(i, **transitions)
+        updates = self._imaginary_updates(imagining)
+        for j in range(c.n_imaginary_updates):
+            # agents with updates left and something in M_I (a gate may have kept nothing yet)
+            learning = [i for i in imagining if updates[i] > j and self.imaginary.size[i] > 0]
+            if not learning:
+                break
+            if learning != imagining:
+                gens = [g if i in learning else None for i, g in enumerate(self.generators)]
+            rows = torch.as_tensor(learning, device=self.device)
             b = self.imaginary.sample(c.imaginary_batch, gens)
             loss = self.controller.update(
-                b["z"], b["action"], b["reward"], b["next_z"], b["done"], imagining
+                b["z"], b["action"], b["reward"], b["next_z"], b["done"], learning
             )
             self._record("losses/controller_imaginary", loss, rows)
+
+    def _imaginary_updates(self, agents: list[int]) -> dict[int, int]:
+        """N_I of each agent this step: the config's, or with ``imagination_adaptive`` N_I
+        times its running acceptance, 0 while M is not trusted (:mod:`imagine.gate`)."""
+        c = self.config
+        if not c.imagination_adaptive:
+            return {i: c.n_imaginary_updates for i in agents}
+        recent, held = self.real.newest_each(TRUST_RECENT)
+        right = one_step_right(self.model, recent, held).tolist()
+        return {
+            i: imaginary_updates(c.n_imaginary_updates, self.trust.acceptance[i],
+                                 right[i] >= c.imagination_trust_floor)
+            for i in agents
+        }  # fmt: skip
 
     def _imagination_starts(
         self, gens: list[torch.Generator | None]
@@ -311,6 +345,8 @@ class Population:
         tensors |= self.real.state_dict("real", agent) | self.imaginary.state_dict(
             "imaginary", agent
         )
+        if self.trust.on:
+            tensors |= self.trust.state_dict("gate", agent)
         tensors["rng.generator"] = self.generators[agent].get_state()
         save_tensors(folder / "agent.safetensors", tensors)
         state = self.envs._rngs[agent].bit_generator.state
@@ -348,6 +384,8 @@ class Population:
         self.model.optimizer.load_agent_state(agent, tensors, "model_optim")
         self.real.load_state_dict(tensors, "real", agent)
         self.imaginary.load_state_dict(tensors, "imaginary", agent)
+        if self.trust.on:
+            self.trust.load_state_dict(tensors, "gate", agent)
         self.generators[agent].set_state(tensors["rng.generator"])
         self.envs._rngs[agent].bit_generator.state = meta["env_rng"]
         self.episode[agent], self.t[agent] = int(meta["episode"]), int(meta["t"])
@@ -370,8 +408,11 @@ class EpisodeTotals:
     length: int = 0
     success: bool = False
     imagined: int = 0
+    """Transitions imagined, before any gate."""
     disagreement: float | None = None
     """Sum of M's members' disagreement over the imagined transitions (None: one member)."""
+    accepted: int | None = None
+    """Imagined transitions a gate kept (None: no gate)."""
     eps: float = 0.0
 
     def add(self, reward: float, eps: float) -> None:
@@ -383,10 +424,15 @@ class EpisodeTotals:
     def add_disagreement(self, total: float) -> None:
         self.disagreement = (self.disagreement or 0.0) + total
 
+    def add_accepted(self, n: int) -> None:
+        self.accepted = (self.accepted or 0) + n
+
     def stats(self) -> dict[str, float]:
         out = {"charts/return": self.total, "charts/success": float(self.success),
                "charts/episode_length": float(self.length), "charts/epsilon": self.eps,
                "charts/imagined_transitions": float(self.imagined)}  # fmt: skip
         if self.disagreement is not None and self.imagined:
             out["charts/imagined_disagreement"] = self.disagreement / self.imagined
+        if self.accepted is not None and self.imagined:
+            out["charts/imagined_accepted"] = self.accepted / self.imagined
         return out
