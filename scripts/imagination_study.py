@@ -28,6 +28,9 @@ from imagine.experiments import Job, LocalRunner, load_evaluations
 
 PAPER_READING = {"model_latents": "sample", "imagination_draw": "sample",
                  "imagination_start": 1000}  # fmt: skip
+HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
+            "imagination_start": 100}  # fmt: skip
+TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
     "baseline": ("baseline", {}),
@@ -100,6 +103,16 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "baseline, 3 real C updates in place of the 3 imagined ones from I_start": (
         "baseline",
         {"imagination_start": 1000, "real_in_place_of_imagined": True, "n_imaginary_updates": 3},
+    ),
+    # issue 15, model trust: the fast preset's augmented method (M's mode) with M handicapped
+    "augmented, M handicapped (1 x 32 updates per step, I_start 100)": ("augmented", HANDICAP),
+    "augmented, M handicapped, K = 5, mask gate, adaptive N_I": (
+        "augmented",
+        {**HANDICAP, **TRUST},
+    ),
+    "augmented, M handicapped, K = 5, random mask of the gate's rate, adaptive N_I": (
+        "augmented",
+        {**HANDICAP, **TRUST, "imagination_gate": "random"},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
