@@ -87,6 +87,8 @@ def test_bad_imagination_choices_are_refused():
         agent_preset("fast", imagination_draw="max")
     with pytest.raises(ConfigError, match="imagination_epsilon must be in"):
         agent_preset("fast", imagination_epsilon=1.5)
+    with pytest.raises(ConfigError, match="latent_space must be one of posterior, standardized"):
+        agent_preset("fast", latent_space="whitened")
 
 
 def test_latent_activity_finds_the_collapsed_dimensions():
@@ -281,3 +283,51 @@ def test_imagined_rollouts_start_where_imagination_from_says(start):
         assert bool(at_current.all())
     else:
         assert float(at_current.float().mean()) < 0.5
+
+
+class _OneCollapsed:
+    """An encoder whose third dimension holds the prior alone (mean 0, sigma 1)."""
+
+    latent_dim = 3
+
+    def __init__(self) -> None:
+        self.table = torch.stack(
+            [torch.arange(192.0) / 50, torch.arange(192.0).remainder(7) * 3,
+             torch.full((192,), 0.01)], dim=-1,
+        )  # fmt: skip
+
+    def encode(self, images, states):
+        mu = self.table[torch.as_tensor(states)]
+        return mu, torch.tensor([0.05, 0.3, 1.0]).expand_as(mu)
+
+    def classify(self, z):
+        return torch.cdist(z, self.table).argmin(-1)
+
+    def state_latents(self):
+        return self.table.clone()
+
+
+def test_standardized_latent_drops_collapsed_dimensions_and_keeps_every_state_apart():
+    from imagine.encoder import StandardizedEncoder
+
+    inner = _OneCollapsed()
+    encoder = StandardizedEncoder(inner)
+    assert encoder.latent_dim == 2  # the collapsed third dimension is gone
+    z = encoder.state_latents()
+    assert torch.allclose(z.mean(0), torch.zeros(2), atol=1e-5)
+    assert torch.allclose(z.std(0), torch.ones(2), atol=1e-5)
+    states = np.arange(0, 192, 5)
+    mu, sigma = encoder.encode(None, states)
+    assert torch.allclose(mu, z[states])
+    assert torch.allclose(sigma, torch.tensor([0.05, 0.3]) / inner.table[:, :2].std(0))
+    # every state is read back from its standardized latent
+    assert torch.equal(encoder.classify(z), torch.arange(192))
+
+
+def test_standardized_oracle_reads_back_every_macrostate():
+    from imagine.agent import make_encoder
+    from imagine.env.rules import all_macrostates
+
+    encoder = make_encoder(agent_preset("fast", encoder="oracle", latent_space="standardized"))
+    assert encoder.latent_dim == 8
+    assert np.array_equal(encoder.classify(encoder.state_latents()).numpy(), all_macrostates())

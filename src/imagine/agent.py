@@ -30,20 +30,23 @@ import torch
 from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json
 from imagine.config import AgentConfig, from_dict
 from imagine.controller import Controller
-from imagine.encoder import OracleEncoder, VaeEncoder
+from imagine.encoder import OracleEncoder, StandardizedEncoder, VaeEncoder
 from imagine.env import make_composer
 from imagine.errors import CheckpointError, ConfigError, NumericalError
 from imagine.world_model import WorldModel
 
 
 def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
+    """What C and M see: ``config.encoder``, in ``config.latent_space``."""
     if config.encoder == "oracle":
-        return OracleEncoder(sigma=config.oracle_sigma)
-    if config.vae_run is None:
+        encoder = OracleEncoder(sigma=config.oracle_sigma)
+    elif config.vae_run is None:
         raise ConfigError(
             "agent.encoder is vae but no V run was given (--vae RUN or encoder=oracle)"
         )
-    return VaeEncoder(config.vae_run, make_composer(), device=device)
+    else:
+        encoder = VaeEncoder(config.vae_run, make_composer(), device=device)
+    return StandardizedEncoder(encoder) if config.latent_space == "standardized" else encoder
 
 
 @dataclasses.dataclass

@@ -211,6 +211,11 @@ class AgentConfig:
     """V run folder (from `imagine vae train`) for encoder=vae."""
     oracle_sigma: float = 0.05
     """The sigma the oracle encoder reports, so latents can still be re-sampled."""
+    latent_space: str = "posterior"
+    """The space C and M work in: posterior (the encoder's own: all of V's dimensions, as V
+    left them; the paper) or standardized (only the dimensions whose mean moves across
+    macrostates, each centred and scaled to unit spread over the encoder's per-macrostate mean
+    latents; sigma scaled alike). Collapsed dimensions carry only the prior's noise."""
     gamma: float = 0.99
     """Discount (the paper does not say; DESIGN.md: 0.99)."""
     eps_min: float = 0.001
@@ -331,7 +336,8 @@ class AgentConfig:
         from imagine.env.rules import TASKS
 
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
-                   "encoder": ("vae", "oracle"), "eps_time": ("step", "episode"),
+                   "encoder": ("vae", "oracle"),
+                   "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode"),
                    "imagination_from": ("current", "memory"),
