@@ -74,9 +74,9 @@ def test_rollouts_from_the_mean_with_the_mode_are_deterministic():
             for s in (0, 1)]  # fmt: skip
     first = runs[0]
     assert torch.equal(first["z"][0], mu[0]) and torch.equal(first["z"][1], mu[0])
-    assert torch.equal(
-        first["next_z"][0], model.mode(mu.view(1, 1, 4), first["action"][:1].view(1, 1))[0, 0]
-    )
+    # the mode of M for the first step (computed alone, so up to the rounding of another batch)
+    expected = model.mode(mu.view(1, 1, 4), first["action"][:1].view(1, 1))[0, 0]
+    assert torch.allclose(first["next_z"][0], expected, atol=1e-6)
     assert all(torch.equal(runs[0][k], runs[1][k]) for k in first)
 
 
@@ -157,8 +157,8 @@ def test_residual_m_starts_at_the_identity_and_matches_the_single_agent_form():
 
 def test_residual_m_carries_unchanged_factors_to_states_it_never_saw():
     """Action 0 adds 1 to every coordinate, the other actions leave the state as it is: trained
-    on states near the origin, a residual M predicts states far from it; a next-state M does
-    not."""
+    on states near the origin, a residual M carries far states through the actions that leave
+    them unchanged; a next-state M does not."""
     errors = {}
     for residual in (False, True):
         torch.manual_seed(0)
@@ -169,8 +169,9 @@ def test_residual_m_carries_unchanged_factors_to_states_it_never_saw():
         far = torch.randn(1, 200, 3, generator=torch.Generator().manual_seed(2)) + 6.0
         action = torch.randint(6, (1, 200), generator=torch.Generator().manual_seed(3))
         truth = far + (action == 0).float().unsqueeze(-1)
-        errors[residual] = float((model.mode(far, action) - truth).abs().mean())
-    assert errors[True] < 0.25 and errors[False] > 2 * errors[True]
+        unchanged = action != 0
+        errors[residual] = float((model.mode(far, action) - truth).abs()[unchanged].mean())
+    assert errors[True] < 0.05 and errors[False] > 5 * errors[True]
 
 
 class RuleModel:
