@@ -116,20 +116,6 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     # round 3: the space C and M read (V's active dimensions, standardized)
     "baseline, standardized latent": ("baseline", {"latent_space": "standardized"}),
-    "augmented, mode, standardized latent": (
-        "augmented",
-        {**PAPER_READING, "imagination_draw": "mode", "latent_space": "standardized"},
-    ),
-    "baseline, standardized, 3 real C updates in place of the 3 imagined ones from I_start": (
-        "baseline",
-        {"imagination_start": 1000, "real_in_place_of_imagined": True,
-         "n_imaginary_updates": 3, "latent_space": "standardized"},
-    ),
-    "augmented, mode, N_I = 3, standardized latent": (
-        "augmented",
-        {**PAPER_READING, "imagination_draw": "mode", "n_imaginary_updates": 3,
-         "latent_space": "standardized"},
-    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

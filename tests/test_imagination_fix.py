@@ -332,3 +332,19 @@ def test_standardized_oracle_reads_back_every_macrostate():
     encoder = make_encoder(agent_preset("fast", encoder="oracle", latent_space="standardized"))
     assert encoder.latent_dim == 8
     assert np.array_equal(encoder.classify(encoder.state_latents()).numpy(), all_macrostates())
+
+
+def test_macrostate_separation_measures_the_microstates_against_the_macrostates():
+    from imagine.env.rules import all_macrostates
+    from imagine.vision_report import macrostate_separation
+
+    states = np.repeat(all_macrostates()[:4], 200, axis=0)  # 4 macrostates, 200 images each
+    means = torch.tensor([[0.0, 0.0], [2.0, 0.0], [0.0, 4.0], [2.0, 4.0]]).repeat_interleave(200, 0)
+    g = torch.Generator().manual_seed(0)
+    quiet = macrostate_separation(means + 0.05 * torch.randn(800, 2, generator=g), states)
+    loud = macrostate_separation(means + 3.0 * torch.randn(800, 2, generator=g), states)
+    assert quiet["nearest_macrostate_distance_min"] == pytest.approx(2.0, abs=0.05)
+    assert quiet["within_std_per_dimension"] == pytest.approx([0.05, 0.05], abs=0.01)
+    assert quiet["between_std_per_dimension"] == pytest.approx([1.155, 2.309], abs=0.02)
+    assert quiet["separation_ratio"] > 20  # images sit on their macrostate's mean
+    assert loud["separation_ratio"] < 1  # the microstate is louder than the macrostate

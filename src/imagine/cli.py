@@ -50,6 +50,10 @@ SetOption = Annotated[
     typer.Option("--set", help="KEY=VALUE: an agent config field over the preset (YAML value)."),
 ]
 HandFragmentsOption = Annotated[int, typer.Option(help="Procedural fragments per pointed cube.")]
+VisionSetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", help="KEY=VALUE: a V config field over the preset (YAML value)."),
+]
 
 
 @env_app.command("show")
@@ -147,13 +151,15 @@ def vae_train(
         Path | None, typer.Option(help="Train on a file from `imagine dataset` instead.")
     ] = None,
     device: Annotated[str, typer.Option(help="auto (CUDA if present), cpu or cuda.")] = "auto",
+    set_: VisionSetOption = None,
 ) -> None:
     """Train V on synthesized images (or a dataset file), then fit the latent classifier.
     Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume."""
-    from imagine.config import vision_preset
+    from imagine.config import parse_assignments, vision_preset
     from imagine.vision_training import resolve_device, resume_point, train_vae, with_dataset
 
-    overrides = {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
+    overrides = parse_assignments(set_ or [])
+    overrides |= {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
     config = vision_preset(preset, **overrides)
     if dataset is not None:
         config = with_dataset(config, dataset)
@@ -185,7 +191,8 @@ def vae_report(
 ) -> None:
     """Write reconstructions.png and traversals.png into RUN and print V's quality numbers:
     test reconstruction loss and KL per image, each latent dimension's KL and whether it has
-    collapsed, the MLP and linear probes' accuracy on fresh images, and (--agent) the accuracy
+    collapsed, how far apart the macrostates lie against the spread of one macrostate's images,
+    the MLP and linear probes' accuracy on fresh images, and (--agent) the accuracy
     of an agent's M in this V's latent space."""
     from rich.table import Table
 
@@ -207,6 +214,15 @@ def vae_report(
     table.add_row(
         "active dimensions (collapsed)",
         f"{report['active_dimensions']} ({', '.join(map(str, collapsed)) or 'none'})",
+    )
+    for name in ("between", "within"):
+        spread = " ".join(f"{x:.2f}" for x in report[f"{name}_std_per_dimension"])
+        table.add_row(f"spread of mu {name} macrostates per dimension", spread)
+    table.add_row(
+        "nearest macrostate mean (min / median) vs an image from its own",
+        f"{report['nearest_macrostate_distance_min']:.2f} / "
+        f"{report['nearest_macrostate_distance_median']:.2f} vs "
+        f"{report['within_macrostate_distance']:.2f} (ratio {report['separation_ratio']:.2f})",
     )
     for probe in ("classifier", "linear_probe"):
         for name, value in report[f"{probe}_accuracy"].items():

@@ -98,6 +98,36 @@ def latent_activity(mu: torch.Tensor, sigma: torch.Tensor) -> dict[str, Any]:
     }
 
 
+def macrostate_separation(mu: torch.Tensor, states: np.ndarray) -> dict[str, Any]:
+    """How far apart V puts the macrostates against how much it moves within one (the images
+    of one macrostate differ by their fragments, lighting and jitter: its microstates).
+
+    Per dimension: the spread of the macrostates' mean latents (between) and the mean spread of
+    the latents of one macrostate's images (within). Overall: the distance from each
+    macrostate's mean latent to the nearest other one (min, median), against the mean distance
+    of an image's latent from its own macrostate's mean. C and M read single images, so a ratio
+    (median nearest / within) below 1 means a typical latent lies farther from its own
+    macrostate's mean than that mean lies from its neighbour's: the microstate is as loud as
+    the macrostate, and C must learn to ignore it."""
+    from imagine.env.rules import macrostate_index
+
+    index = torch.as_tensor(macrostate_index(states))
+    seen = index.unique()
+    means = torch.stack([mu[index == i].mean(0) for i in seen])
+    within = torch.stack([mu[index == i].std(0) for i in seen if int((index == i).sum()) > 1])
+    offsets = mu - means[torch.searchsorted(seen, index)]
+    gaps = torch.cdist(means, means).fill_diagonal_(float("inf")).min(1).values
+    nearest, spread = float(gaps.median()), float(offsets.norm(dim=-1).mean())
+    return {
+        "between_std_per_dimension": [round(float(x), 4) for x in means.std(0)],
+        "within_std_per_dimension": [round(float(x), 4) for x in within.mean(0)],
+        "nearest_macrostate_distance_min": round(float(gaps.min()), 4),
+        "nearest_macrostate_distance_median": round(nearest, 4),
+        "within_macrostate_distance": round(spread, 4),
+        "separation_ratio": round(nearest / spread, 4),
+    }
+
+
 def linear_probe_accuracy(
     fit_mu: torch.Tensor, fit_states: np.ndarray, mu: torch.Tensor, states: np.ndarray
 ) -> dict[str, float]:
@@ -138,6 +168,7 @@ def vision_report(
         "linear_probe_accuracy": linear_probe_accuracy(fit_mu, fit[1], mu, states),
         "classifier_test_images": len(images),
         **latent_activity(mu, sigma),
+        **macrostate_separation(mu, states),
     }
     reconstructions_png(vae, test_images, folder / "reconstructions.png")
     traversals_png(vae, test_images[0], folder / "traversals.png")
