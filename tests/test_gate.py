@@ -217,29 +217,38 @@ def test_adaptive_n_i_is_n_i_times_the_running_acceptance_once_m_is_trusted():
     assert imaginary_updates(1, 0.5, True) == 1  # halves round up
 
 
-class KnownModes:
-    def __init__(self, modes):
-        self.modes = modes
+class ShiftByAction:
+    """K = 2 members over 2-D latents: member 0 moves the state by (a, 0) for action a (it
+    tells every action apart); member 1 predicts the same next state for every action."""
 
     def member_modes(self, z, action):
-        return self.modes
+        moved = z + torch.stack([action.float(), torch.zeros_like(action.float())], -1)
+        return torch.stack([moved, z + 0.5], dim=1)
 
 
-def test_m_is_judged_on_the_newest_real_transitions_in_posterior_sigmas():
+def test_m_is_trusted_where_its_modes_identify_the_action_taken():
     pair, one = ((2,), torch.float32), ((), torch.int64)
-    memory = ReplayMemory(6, {"mu": pair, "sigma": pair, "action": one, "next_mu": pair})
+    memory = ReplayMemory(6, {"mu": pair, "action": one, "next_mu": pair})
     for x in range(8):  # wraps: the newest four are x = 4..7
-        memory.add(0, mu=torch.full((1, 2), float(x)), sigma=torch.full((1, 2), 0.1),
-                   action=torch.zeros(1, dtype=torch.int64),
-                   next_mu=torch.full((1, 2), x + 1.0))  # fmt: skip
+        action = x % 3
+        noise = 0.4 if x == 7 else 0.0  # the newest lands nearer the mode of another action
+        memory.add(0, mu=torch.full((1, 2), float(x)),
+                   action=torch.tensor([action]),
+                   next_mu=torch.tensor([[x + action + 0.6 * (noise > 0), float(x)]]))  # fmt: skip
     recent, held = memory.newest_each(4)
     assert recent["mu"][0, :, 0].tolist() == [4.0, 5.0, 6.0, 7.0] and bool(held.all())
-    truth = recent["next_mu"]
-    # member 0 right on all four; member 1 off by 0.2 (within 3 sigmas = 0.3) on two and by
-    # 0.5 on the other two: 6 of 8 right
-    off = torch.tensor([0.0, 0.2, 0.5, 0.5]).view(1, 4, 1) * torch.tensor([1.0, 0.0])
-    modes = torch.stack([truth, truth + off], dim=1)
-    assert float(one_step_right(KnownModes(modes), recent, held)) == pytest.approx(6 / 8)
+    # member 0 identifies 3 of the 4 actions; member 1 ignores the action, so its modes tie
+    # three ways, each counting 1/3 (chance): (3 + 4/3) / 8
+    right = one_step_right(ShiftByAction(), recent, held, n_actions=3)
+    assert float(right) == pytest.approx((3 + 4 / 3) / 8)
+    # no unit enters: the same transitions 100 times larger are judged the same
+    scaled = {k: (v * 100 if v.is_floating_point() else v) for k, v in recent.items()}
+
+    class Scaled(ShiftByAction):
+        def member_modes(self, z, action):
+            return super().member_modes(z / 100, action) * 100
+
+    assert float(one_step_right(Scaled(), scaled, held, n_actions=3)) == pytest.approx(float(right))
     fresh = ReplayMemory(6, {"mu": ((2,), torch.float32)})
     fresh.add(0, mu=torch.ones(1, 2))
     assert fresh.newest_each(3)[1].tolist() == [[False, False, True]]

@@ -307,8 +307,9 @@ class AgentConfig:
     imagination_adaptive: bool = False
     """Scale N_I with the agent's running acceptance a of its gate (N_I * a, rounded half up;
     a = 1 without a gate), and make no imaginary update while M is not trusted: while fewer
-    than imagination_trust_floor of its one-step modes on the newest real transitions land
-    within 3 posterior sigmas of the observed next mu (:mod:`imagine.gate`)."""
+    than imagination_trust_floor of its one-step modes on the newest real transitions identify
+    the action taken (its mode for that action is the nearest of all actions' modes to the
+    observed next mu; :mod:`imagine.gate`)."""
     imagination_trust_floor: float = 0.8
     """Share of right one-step predictions on the newest real transitions below which an
     adaptive agent makes no imaginary update, in [0, 1]."""

@@ -35,9 +35,14 @@ first, then an exponential mean over about that many steps); 1 without a gate.
     N_I' = floor(N_I * a + 1/2)     otherwise (N_I * a, rounded half up),
 
 M being trusted when, on the agent's newest :data:`TRUST_RECENT` real transitions of M_R, at
-least ``imagination_trust_floor`` of its members' modes from (mu_t, a_t) land within
-:data:`TRUST_RADIUS` units of V's posterior sigma (:func:`~imagine.imagination.posterior_scale`
-of sigma_t, the unit of disagreement) of the observed mu_{t+1}.
+least ``imagination_trust_floor`` of its members' one-step predictions *identify the action*:
+the member's mode for (mu_t, a_t) lies nearer the observed mu_{t+1} than its mode for any
+other action from mu_t (a tie of n actions counts 1 / n). The test needs no unit: one image of a
+macrostate may lie farther from that macrostate's mean latent than V's posterior sigma by an
+order of magnitude (V encodes which fragment it shows, README issue 14, round 3), so "within a
+few sigmas of the observed next latent" can fail for an M that names the right macrostate
+every time; an M that does not yet tell the actions' consequences apart identifies about
+1 / actions of them.
 """
 
 from __future__ import annotations
@@ -48,7 +53,6 @@ import torch
 
 from imagine.config import GATES, AgentConfig
 from imagine.errors import CheckpointError
-from imagine.imagination import posterior_scale
 from imagine.memory import ReplayMemory
 
 ACCEPTANCE_HORIZON = 100
@@ -57,9 +61,8 @@ ACCEPTANCE_HORIZON = 100
 TRUST_RECENT = 100
 """Newest real transitions on which M's one-step prediction is judged."""
 
-TRUST_RADIUS = 3.0
-"""How far, in V's posterior sigmas, M's mode may land from the observed next mu and be right:
-V itself cannot place a state closer than about its sigma in each active dimension."""
+TIE = 1e-6
+"""Distances this close to the nearest count as nearest (actions with the same outcome)."""
 
 
 def gate_threshold(first_steps: torch.Tensor, quantile: float, scale: float) -> torch.Tensor:
@@ -107,15 +110,26 @@ def imaginary_updates(n: int, acceptance: float, trusted: bool) -> int:
 
 
 @torch.no_grad()
-def one_step_right(model, recent: dict[str, torch.Tensor], valid: torch.Tensor) -> torch.Tensor:
-    """Per agent (P,), the share of its members' modes from the real transitions ``recent``
-    ((P, N, ...) fields of M_R; ``valid`` (P, N) marks those held) that land within
-    :data:`TRUST_RADIUS` posterior sigmas of the observed next mu; 0 for an agent with none."""
-    modes = model.member_modes(recent["mu"], recent["action"])  # (P, K, N, D)
-    miss = (modes - recent["next_mu"].unsqueeze(1)).norm(dim=-1)
-    right = (miss <= TRUST_RADIUS * posterior_scale(recent["sigma"]).unsqueeze(1)) & valid[:, None]
-    held = valid.sum(-1) * modes.shape[1]
-    return right.sum((-2, -1)) / held.clamp(min=1)
+def one_step_right(
+    model, recent: dict[str, torch.Tensor], valid: torch.Tensor, n_actions: int
+) -> torch.Tensor:
+    """Per agent (P,), the share of its members' one-step predictions on the real transitions
+    ``recent`` ((P, N, ...) fields of M_R; ``valid`` (P, N) marks those held) that identify
+    the action taken: the mode for a_t is (within :data:`TIE`) the nearest of the modes for
+    all ``n_actions`` actions to the observed next mu; a tie of n actions counts 1 / n, so an
+    M that ignores the action scores chance. 0 for an agent with none."""
+    P, N, D = recent["mu"].shape
+    z = recent["mu"].repeat_interleave(n_actions, dim=1)  # (P, N * A, D)
+    actions = torch.arange(n_actions, device=z.device).repeat(N).expand(P, -1)
+    modes = model.member_modes(z, actions)  # (P, K, N * A, D)
+    K = modes.shape[1]
+    modes = modes.view(P, K, N, n_actions, D)
+    miss = (modes - recent["next_mu"][:, None, :, None]).norm(dim=-1)  # (P, K, N, A)
+    taken = recent["action"].view(P, 1, N, 1).expand(P, K, N, 1)
+    nearest = miss <= miss.min(-1, keepdim=True).values + TIE  # (P, K, N, A)
+    right = nearest.gather(-1, taken).squeeze(-1) / nearest.sum(-1)  # a tie of n: 1 / n
+    right = right * valid[:, None]
+    return right.sum((-2, -1)) / (valid.sum(-1) * K).clamp(min=1)
 
 
 class ModelTrust:

@@ -42,7 +42,7 @@ from imagine.checkpoint import (
 )
 from imagine.config import AgentConfig
 from imagine.controller import Controller, PopulationController, epsilon
-from imagine.env.rules import REWARD_GOAL
+from imagine.env.rules import N_ACTIONS, REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
 from imagine.gate import TRUST_RECENT, ModelTrust, imaginary_updates, one_step_right
@@ -277,7 +277,7 @@ class Population:
         if not c.imagination_adaptive:
             return {i: c.n_imaginary_updates for i in agents}
         recent, held = self.real.newest_each(TRUST_RECENT)
-        right = one_step_right(self.model, recent, held).tolist()
+        right = one_step_right(self.model, recent, held, N_ACTIONS).tolist()
         return {
             i: imaginary_updates(c.n_imaginary_updates, self.trust.acceptance[i],
                                  right[i] >= c.imagination_trust_floor)
