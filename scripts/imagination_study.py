@@ -116,6 +116,11 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     # round 3: the space C and M read (V's active dimensions, standardized)
     "baseline, standardized latent": ("baseline", {"latent_space": "standardized"}),
+    # issue 15: the fast preset's M, imagination from episode 100 as soon as trust allows
+    "augmented, mode, I_start 100, K = 5, mask gate, adaptive N_I": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, **TRUST},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
