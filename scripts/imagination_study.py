@@ -121,6 +121,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100, **TRUST},
     ),
+    "baseline, a real C update in place of each imagined one from episode 100": (
+        "baseline",
+        {"imagination_start": 100, "real_in_place_of_imagined": True},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
