@@ -30,8 +30,11 @@ def assert_same_agent(a, b):
 
 @pytest.mark.parametrize("overrides", [
     {},  # smoke: the paper's 50% dropout in M, so dropout masks are per agent too
-    {"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
-    {"model_ensemble": 2},  # members' bootstrap batches, dropout masks and draws per agent
+    # slow (make test-all): the same equality with the options' extra streams
+    pytest.param({"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
+                 marks=pytest.mark.slow),
+    # members' bootstrap batches, dropout masks and draws per agent
+    pytest.param({"model_ensemble": 2}, marks=pytest.mark.slow),
 ])  # fmt: skip
 def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
     settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,

@@ -73,7 +73,9 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     assert evaluation_times(out) == before
 
 
-@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM])
+@pytest.mark.parametrize(
+    "stop", [signal.SIGKILL, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)]
+)
 def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop):
     out = tmp_path / "study"
     args = [IMAGINE, "reproduce", str(out), *SMOKE, "--tasks", "original", "--oracle",

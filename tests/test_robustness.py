@@ -86,7 +86,9 @@ def test_same_seed_same_numbers(tmp_path):
     assert same_weights(tmp_path / "a", tmp_path / "b")
 
 
-@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL])
+@pytest.mark.parametrize(
+    "stop", [signal.SIGTERM, pytest.param(signal.SIGKILL, marks=pytest.mark.slow)]
+)
 def test_a_run_stopped_mid_way_resumes_to_the_same_results(tmp_path, stop):
     straight, stopped = tmp_path / "straight", tmp_path / "stopped"
     done = subprocess.run([IMAGINE, "train", str(straight), *SMOKE_RUN], capture_output=True,
