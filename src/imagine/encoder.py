@@ -97,9 +97,10 @@ class StandardizedEncoder:
     and sigma' = sigma / s. C and M both work in z'; :meth:`classify` maps back (dropped
     dimensions at their mean) and asks the wrapped encoder.
 
-    Why: a beta-VAE's collapsed dimensions hold the prior (sigma near 1) and nothing else, and
-    its active ones come at whatever scale the KL term left them; a DQN and an MDN learn faster
-    from inputs of unit scale without dimensions of pure noise (README, issue 14)."""
+    The idea: a beta-VAE's collapsed dimensions hold the prior and nothing else, and its active
+    ones come at whatever scale the KL term left them. Measured with the fast V it makes C
+    *slower* (README, issue 14 round 3): scaling by the spread across macrostates also scales
+    up dimensions that mostly encode the fragment an image shows."""
 
     def __init__(self, inner) -> None:
         self.inner = inner
