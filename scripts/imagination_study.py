@@ -125,6 +125,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "baseline",
         {"imagination_start": 100, "real_in_place_of_imagined": True},
     ),
+    "augmented, mode, I_start 100, no trust (one M, every imagined update made)": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -138,6 +138,7 @@ def test_bad_gate_settings_are_refused_in_one_line():
         ("imagination_gate_window", 0, "agent.imagination_gate_window must be positive, got 0"),
         ("imagination_trust_floor", 1.5,
          "agent.imagination_trust_floor must be in [0, 1], got 1.5"),
+        ("imagination_trust_every", 0, "agent.imagination_trust_every must be >= 1, got 0"),
     ]  # fmt: skip
     for key, value, message in cases:
         with pytest.raises(ConfigError) as error:
@@ -193,6 +194,38 @@ def test_adaptive_n_i_is_zero_while_m_is_not_trusted():
                    n_imaginary_updates=4)  # fmt: skip
     assert p.imaginary.added[0] > 0  # it imagines, but C never learns from it
     assert "losses/controller_imaginary" not in p._loss_count
+
+
+def test_trust_is_judged_every_few_real_steps_and_holds_in_between(monkeypatch):
+    import imagine.population
+
+    judged = []
+
+    def counting(model, recent, valid, n_actions):
+        judged.append(int(valid.sum()))  # real transitions held when judged
+        return torch.ones(valid.shape[0])
+
+    monkeypatch.setattr(imagine.population, "one_step_right", counting)
+    p = population(12, imagination_adaptive=True, imagination_trust_every=4)
+    assert len(judged) == 3  # at the agent's real steps 0, 4 and 8 of 12
+    assert judged == sorted(judged) and judged[-1] > judged[0]  # on newer transitions each time
+    assert p.trust.trusted[0] and 0 <= p.t[0] - 1 - p.trust.judged_at[0] < 4
+    judged.clear()
+    population(12, imagination_adaptive=True, imagination_trust_every=1)
+    assert len(judged) == 12
+
+
+def test_trust_judgment_round_trips_and_an_older_checkpoint_judges_at_once():
+    trust = ModelTrust(agent_preset("smoke", imagination_adaptive=True), 2, torch.device("cpu"))
+    trust.judge(1, t=7, right=0.9)
+    assert trust.trusted[1] and not trust.due(1, 16) and trust.due(1, 17) and trust.due(0, 0)
+    tensors = trust.state_dict("gate", 1)
+    again = ModelTrust(trust.config, 2, torch.device("cpu"))
+    again.load_state_dict(tensors, "gate", 0)
+    assert again.trusted[0] and again.judged_at[0] == 7
+    del tensors["gate.trust"]  # written before trust was judged every few steps
+    again.load_state_dict(tensors, "gate", 0)
+    assert not again.trusted[0] and again.due(0, 8)
 
 
 def test_adaptive_n_i_is_n_i_times_the_running_acceptance_once_m_is_trusted():
@@ -283,7 +316,7 @@ def test_a_resumed_agent_gates_as_one_that_never_stopped(gated_run, tmp_path):
     assert numbers(resumed) == numbers(straight)
     a, b = (load_tensors(f / "agent.safetensors", "agent checkpoint") for f in (straight, resumed))
     gate_keys = [k for k in a if k.startswith("gate.")]
-    assert len(gate_keys) == 3 and all(torch.equal(a[k], b[k]) for k in gate_keys)
+    assert len(gate_keys) == 4 and all(torch.equal(a[k], b[k]) for k in gate_keys)
     for (name, p), q in zip(load_agent(straight).controller.state_dict().items(),
                             load_agent(resumed).controller.state_dict().values(),
                             strict=True):  # fmt: skip

@@ -313,6 +313,11 @@ class AgentConfig:
     imagination_trust_floor: float = 0.8
     """Share of right one-step predictions on the newest real transitions below which an
     adaptive agent makes no imaginary update, in [0, 1]."""
+    imagination_trust_every: int = 10
+    """Real time steps between two judgments of M's trust by an adaptive agent (>= 1); the
+    last judgment holds in between. Judging runs every member on all actions of the newest
+    100 real transitions, more than a step's imagination costs; within 10 steps at most a
+    tenth of those transitions are new."""
     imagination_start: int = 1000
     """I_start: first episode with imagined rollouts."""
     imagination_breadth: int = 3
@@ -383,6 +388,10 @@ class AgentConfig:
             raise ConfigError(
                 "agent.imagination_trust_floor must be in [0, 1], got "
                 f"{self.imagination_trust_floor}"
+            )
+        if self.imagination_trust_every < 1:
+            raise ConfigError(
+                f"agent.imagination_trust_every must be >= 1, got {self.imagination_trust_every}"
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"agent.dropout must be in [0, 1), got {self.dropout}")

@@ -10,6 +10,7 @@ something, each scaled to unit spread (``latent_space=standardized``).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import torch
 
 from imagine.env.rules import all_macrostates, macrostate_index
 from imagine.env.scene import SceneComposer
-from imagine.vision import encode_images
+from imagine.vision import ACTIVE_VARIANCE, encode_images
 
 
 def factored_embedding(states: np.ndarray) -> torch.Tensor:
@@ -85,9 +86,10 @@ class VaeEncoder:
         return self._state_latents.clone()
 
 
-ACTIVE_SPREAD = 0.1
+ACTIVE_SPREAD = math.sqrt(ACTIVE_VARIANCE)
 """A dimension whose reference means spread less than this (std across the macrostates; the
-activity criterion of ``imagine vae report``, variance 0.01) is collapsed and dropped."""
+activity criterion of ``imagine vae report``, :data:`imagine.vision.ACTIVE_VARIANCE`, as a
+standard deviation) is collapsed and dropped."""
 
 
 class StandardizedEncoder:

@@ -34,7 +34,8 @@ first, then an exponential mean over about that many steps); 1 without a gate.
     N_I' = 0                        while M is not trusted,
     N_I' = floor(N_I * a + 1/2)     otherwise (N_I * a, rounded half up),
 
-M being trusted when, on the agent's newest :data:`TRUST_RECENT` real transitions of M_R, at
+M being trusted when (judged every ``imagination_trust_every`` real time steps; the last
+judgment holds in between), on the agent's newest :data:`TRUST_RECENT` real transitions of M_R, at
 least ``imagination_trust_floor`` of its members' one-step predictions *identify the action*:
 the member's mode for (mu_t, a_t) lies nearer the observed mu_{t+1} than its mode for any
 other action from mu_t (a tie of n actions counts 1 / n). The test needs no unit: one image of a
@@ -144,11 +145,23 @@ class ModelTrust:
         )
         self.acceptance = [1.0] * agents
         self.steps = [0] * agents
+        self.trusted = [False] * agents
+        self.judged_at = [-1] * agents  # the real time step of the last judgment; -1: never
 
     @property
     def on(self) -> bool:
         """Whether there is state to keep (a gate or the adaptive ratio)."""
         return self.config.imagination_gate != "none" or self.config.imagination_adaptive
+
+    def due(self, agent: int, t: int) -> bool:
+        """Whether the agent's trust is to be judged again at its real time step t."""
+        last = self.judged_at[agent]
+        return last < 0 or t - last >= self.config.imagination_trust_every
+
+    def judge(self, agent: int, t: int, right: float) -> None:
+        """Record a judgment: M is trusted while ``right`` reaches the floor."""
+        self.trusted[agent] = right >= self.config.imagination_trust_floor
+        self.judged_at[agent] = t
 
     def threshold(self, agent: int) -> torch.Tensor:
         """The agent's tau now."""
@@ -185,6 +198,8 @@ class ModelTrust:
         tensors = self.first_steps.state_dict(f"{prefix}.first_steps", agent)
         running = [self.acceptance[agent], float(self.steps[agent])]
         tensors[f"{prefix}.acceptance"] = torch.tensor(running, dtype=torch.float64)
+        judged = [float(self.trusted[agent]), float(self.judged_at[agent])]
+        tensors[f"{prefix}.trust"] = torch.tensor(judged, dtype=torch.float64)
         return tensors
 
     def load_state_dict(self, tensors: dict[str, torch.Tensor], prefix: str, agent: int) -> None:
@@ -193,3 +208,6 @@ class ModelTrust:
             raise CheckpointError(f"checkpoint lacks {prefix}.acceptance")
         acceptance, steps = tensors[f"{prefix}.acceptance"].tolist()
         self.acceptance[agent], self.steps[agent] = float(acceptance), int(steps)
+        # a checkpoint from before trust was judged every few steps: judge at the next step
+        trusted, judged_at = tensors.get(f"{prefix}.trust", torch.tensor([0.0, -1.0])).tolist()
+        self.trusted[agent], self.judged_at[agent] = bool(trusted), int(judged_at)

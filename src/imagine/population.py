@@ -276,11 +276,15 @@ class Population:
         c = self.config
         if not c.imagination_adaptive:
             return {i: c.n_imaginary_updates for i in agents}
-        recent, held = self.real.newest_each(TRUST_RECENT)
-        right = one_step_right(self.model, recent, held, N_ACTIONS).tolist()
+        due = [i for i in agents if self.trust.due(i, self.t[i])]
+        if due:  # one batched judgment of the whole population, kept for the agents due
+            recent, held = self.real.newest_each(TRUST_RECENT)
+            right = one_step_right(self.model, recent, held, N_ACTIONS).tolist()
+            for i in due:
+                self.trust.judge(i, self.t[i], right[i])
         return {
             i: imaginary_updates(c.n_imaginary_updates, self.trust.acceptance[i],
-                                 right[i] >= c.imagination_trust_floor)
+                                 self.trust.trusted[i])
             for i in agents
         }  # fmt: skip
 

@@ -21,6 +21,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+ACTIVE_VARIANCE = 0.01
+"""A latent dimension is active when its mean moves across images: Var_x(E[z_d | x]) above
+this (the activity measure of Burda et al., 2016, Importance Weighted Autoencoders). A
+collapsed dimension keeps the prior's sigma near 1 and carries no information about the image."""
+
 IMAGE_SHAPE = (3, 64, 64)
 INITIAL_LOG_SIGMA = -3.0
 

@@ -20,12 +20,7 @@ from imagine.checkpoint import save_figure, write_json
 from imagine.config import VisionConfig
 from imagine.dataset import DatasetConfig, synthesize
 from imagine.latent_classifier import LatentClassifier
-from imagine.vision import ConvVAE, encode_images, to_input
-
-ACTIVE_VARIANCE = 0.01
-"""A latent dimension is active when its mean moves across images: Var_x(E[z_d | x]) above
-this (the activity measure of Burda et al., 2016, Importance Weighted Autoencoders). A
-collapsed dimension keeps the prior's sigma near 1 and carries no information about the image."""
+from imagine.vision import ACTIVE_VARIANCE, ConvVAE, encode_images, to_input
 
 
 def as_scene(x: torch.Tensor | np.ndarray) -> np.ndarray:
