@@ -31,6 +31,8 @@ PAPER_READING = {"model_latents": "sample", "imagination_draw": "sample",
 HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
             "imagination_start": 100}  # fmt: skip
 TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
+SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
+                 "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
     "baseline": ("baseline", {}),
@@ -128,6 +130,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "augmented, mode, I_start 100, no trust (one M, every imagined update made)": (
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100},
+    ),
+    "augmented, mode, I_start 100, one M, mask gate on support, adaptive N_I": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, **SUPPORT_TRUST},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}

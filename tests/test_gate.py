@@ -15,10 +15,12 @@ from imagine.encoder import OracleEncoder
 from imagine.errors import ConfigError
 from imagine.evaluate import imagined_accuracy
 from imagine.gate import (
+    FAR,
     ModelTrust,
     gate_transitions,
     imaginary_updates,
     one_step_right,
+    support_distance,
 )
 from imagine.imagination import imagine_rollouts
 from imagine.memory import ReplayMemory
@@ -129,7 +131,10 @@ def test_bad_gate_settings_are_refused_in_one_line():
         ("imagination_gate", "maybe", "agent.imagination_gate must be one of none, stop, mask, "
          "random, got 'maybe'"),
         ("imagination_gate", "stop", "agent.imagination_gate stop needs the members' "
-         "disagreement: set agent.model_ensemble >= 2 (got 1)"),
+         "disagreement: set agent.model_ensemble >= 2 (got 1) or "
+         "agent.imagination_uncertainty=support"),
+        ("imagination_uncertainty", "vibes", "agent.imagination_uncertainty must be one of "
+         "disagreement, support, got 'vibes'"),
         ("imagination_gate_quantile", 0.0,
          "agent.imagination_gate_quantile must be in (0, 1], got 0.0"),
         ("imagination_gate_quantile", 1.5,
@@ -152,13 +157,46 @@ def population(steps: int, ended: list | None = None, **overrides) -> Population
     """A gated agent after ``steps`` real steps; the statistics of its finished episodes are
     appended to ``ended``."""
     config = agent_preset("smoke", encoder="oracle", imagination_start=0, imagination_depth=4,
-                          model_ensemble=2, seed=3, **overrides)  # fmt: skip
+                          seed=3, **{"model_ensemble": 2, **overrides})  # fmt: skip
     p = Population([config], OracleEncoder())
     for _ in range(steps):
         stats = p.step()
         if ended is not None:
             ended += [s for _, s in stats]
     return p
+
+
+def test_support_is_the_distance_to_the_nearest_real_start_with_the_same_action():
+    memory_mu = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 3.0]])
+    memory_action = torch.tensor([0, 1, 0])
+    z = torch.tensor([[0.9, 0.0], [0.9, 0.0], [0.0, 2.0], [0.5, 0.5]])
+    u = support_distance(z, torch.tensor([0, 1, 0, 2]), memory_mu, memory_action)
+    assert u[:3].tolist() == pytest.approx([0.9, 0.1, 1.0])
+    assert u[3] == FAR  # the agent never took action 2: as far as can be
+    assert support_distance(z, torch.zeros(4, dtype=torch.int64), memory_mu[:0],
+                            memory_action[:0]).eq(FAR).all()  # fmt: skip
+
+
+def test_a_support_gate_needs_no_ensemble_and_keeps_what_m_has_data_for():
+    settings = {"model_ensemble": 1, "imagination_uncertainty": "support"}
+    plain = population(20, model_ensemble=1)
+    wide = population(20, imagination_gate="mask", imagination_gate_quantile=1.0,
+                      imagination_gate_scale=1e9, **settings)  # fmt: skip
+    for name, value in plain.imaginary.data.items():  # nothing dropped: no gate at all
+        assert torch.equal(wide.imaginary.data[name], value), name
+    ended = []
+    gated = population(30, ended, imagination_gate="mask", imagination_gate_quantile=0.5,
+                       **settings)  # fmt: skip
+    assert wide.imaginary.added[0] > 0 and plain.imaginary.added[0] > 0
+    imagined = sum(s["charts/imagined_transitions"] for s in ended)
+    accepted = sum(s["charts/imagined_accepted"] * s["charts/imagined_transitions"]
+                   for s in ended)  # fmt: skip
+    assert 0 < accepted < imagined  # the median threshold drops some
+    kept = gated.imaginary.size[0]
+    u = gated._support(0, gated.imaginary.data["z"][0, :kept],
+                       gated.imaginary.data["action"][0, :kept])  # fmt: skip
+    assert (u < FAR).all()
+    assert ended[-1]["charts/imagined_disagreement"] > 0  # the mean u, logged
 
 
 def test_a_gate_that_drops_nothing_is_bitwise_no_gate():
@@ -332,11 +370,12 @@ def test_evaluate_reports_what_the_gate_accepts_and_how_right_it_is(gated_run, c
     out = imagined_accuracy(load_agent(folder), starts=20)
     n, accepted = out["transitions"], out["accepted"]
     assert 0 < accepted < 1
+    assert 0 <= out["support_auroc"] <= 1 or math.isnan(out["support_auroc"])
     right = n * accepted * out["state_accepted"] + n * (1 - accepted) * out["state_rejected"]
     assert right == pytest.approx(n * out["state"])
     assert out["gate_threshold"] > 0 and not math.isnan(out["state_rejected"])
     evaluate_agent(folder, episodes=10, seed=0)
-    assert "gate mask at q 0.5, scale 1.0: threshold" in capsys.readouterr().out
+    assert "gate mask on disagreement at q 0.5, scale 1.0: threshold" in capsys.readouterr().out
 
 
 def test_a_gated_agent_in_a_population_gates_as_it_does_alone():

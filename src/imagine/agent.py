@@ -60,6 +60,9 @@ class Agent:
     model: WorldModel
     episode: int
     t: int
+    memory_starts: tuple[torch.Tensor, torch.Tensor] | None = None
+    """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
+    ``support`` uncertainty measures against, :mod:`imagine.gate`); None if not saved."""
 
 
 def saved_config(folder: Path) -> AgentConfig | None:
@@ -119,5 +122,8 @@ def load_agent(folder: str | Path) -> Agent:
     where = str(folder / "agent.safetensors")
     load_state_dict_strict(controller, part(tensors, "controller"), where)
     load_state_dict_strict(model, part(tensors, "model"), where)
+    starts = None
+    if "real.mu" in tensors and "real.action" in tensors:
+        starts = (tensors["real.mu"], tensors["real.action"])
     return Agent(config, encoder, controller.eval(), model.eval(), int(meta["episode"]),
-                 int(meta["t"]))  # fmt: skip
+                 int(meta["t"]), starts)  # fmt: skip

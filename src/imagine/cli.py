@@ -339,9 +339,9 @@ def evaluate_agent(
 ) -> None:
     """Run greedy test episodes (batched) and print the success rate with its 95% interval, M's
     accuracy over all 192 x 6 true transitions, and how right the transitions are that M
-    imagines for C (judged by V's latent classifier); for an ensemble M, how well its members'
-    disagreement detects the wrong ones (AUROC), and how right the transitions its gate
-    accepts and rejects are."""
+    imagines for C (judged by V's latent classifier); how well the members' disagreement (an
+    ensemble M) and the support distance detect the wrong ones (AUROC), and how right the
+    transitions its gate accepts and rejects are."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
     from imagine.evaluate import greedy_success, imagined_accuracy, model_accuracy
@@ -356,10 +356,12 @@ def evaluate_agent(
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
     detection = None if imagined is None else imagined.get("disagreement_auroc")
+    support = None if imagined is None else imagined.get("support_auroc")
     write_json(run / "evaluation.json", {
         "after_episodes": agent.episode, **result, "model_accuracy": accuracy,
         "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other,
-        "imagined_disagreement_auroc": detection})  # fmt: skip
+        "imagined_disagreement_auroc": detection,
+        "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
@@ -379,8 +381,15 @@ def evaluate_agent(
               "imagined states: AUROC {disagreement_auroc:.3f}; state right in the most-agreed "
               "half {state_agreed_half:.1%}, in the rest {state_disagreed_half:.1%}"
               .format(**imagined))  # fmt: skip
+    if support is not None:
+        print(
+            f"support (distance to M_R's nearest start with the same action) as a detector of "
+            f"wrong imagined states: AUROC {support:.3f}"
+        )
+    if "accepted" in imagined:
         gate = agent.config.imagination_gate
         rule = f"gate {gate}" if gate != "none" else "gate mask (the agent has none)"
+        rule += f" on {agent.config.imagination_uncertainty}"
         print(f"{rule} at q {agent.config.imagination_gate_quantile}, scale "
               f"{agent.config.imagination_gate_scale}: threshold {{gate_threshold:.3f}}, accepts "
               "{accepted:.1%}; state right in the accepted {state_accepted:.1%}, in the rejected "

@@ -26,6 +26,8 @@ from imagine.errors import ConfigError
 PRESETS = ("paper", "fast", "smoke")
 GATES = ("none", "stop", "mask", "random")
 """The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
+UNCERTAINTIES = ("disagreement", "support")
+"""The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
 
 
 @dataclass(frozen=True)
@@ -293,11 +295,18 @@ class AgentConfig:
     reward_hidden: int = 512
     """Units in each of the r-network's 3 hidden layers (paper: 512)."""
     imagination_gate: str = "none"
-    """Which imagined transitions reach M_I, by the members' disagreement u against
+    """Which imagined transitions reach M_I, by their uncertainty u (imagination_uncertainty)
+    against
     tau = imagination_gate_scale * quantile_q(first-step u of the agent's recent rollouts)
-    (:mod:`imagine.gate`; needs model_ensemble >= 2): stop (MACURA: a rollout ends at its first
+    (:mod:`imagine.gate`): stop (MACURA: a rollout ends at its first
     u > tau, that transition not kept), mask (M2AC: each u > tau dropped), random (the control:
     as many as mask drops, chosen at random) or none (all kept; the paper)."""
+    imagination_uncertainty: str = "disagreement"
+    """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):
+    disagreement (the members' mean pairwise distance between their modes of z'; needs
+    model_ensemble >= 2) or support (the distance from z to the nearest start latent of a
+    real transition with the same action in the agent's M_R: how far M extrapolates from its
+    data; any K)."""
     imagination_gate_quantile: float = 0.95
     """q of the gate's threshold, in (0, 1]."""
     imagination_gate_scale: float = 1.0
@@ -347,7 +356,8 @@ class AgentConfig:
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode"),
                    "imagination_from": ("current", "memory"),
-                   "imagination_gate": GATES}  # fmt: skip
+                   "imagination_gate": GATES,
+                   "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(
@@ -379,10 +389,15 @@ class AgentConfig:
                 "agent.imagination_gate_quantile must be in (0, 1], got "
                 f"{self.imagination_gate_quantile}"
             )
-        if self.imagination_gate != "none" and self.model_ensemble < 2:
+        if (
+            self.imagination_gate != "none"
+            and self.imagination_uncertainty == "disagreement"
+            and self.model_ensemble < 2
+        ):
             raise ConfigError(
                 f"agent.imagination_gate {self.imagination_gate} needs the members' disagreement:"
-                f" set agent.model_ensemble >= 2 (got {self.model_ensemble})"
+                f" set agent.model_ensemble >= 2 (got {self.model_ensemble}) or "
+                "agent.imagination_uncertainty=support"
             )
         if not 0.0 <= self.imagination_trust_floor <= 1.0:
             raise ConfigError(

@@ -23,7 +23,7 @@ from imagine.env.rules import (
     rewards,
 )
 from imagine.env.vector import GesturePuzzleVectorEnv
-from imagine.gate import gate_threshold, gate_transitions
+from imagine.gate import gate_threshold, gate_transitions, support_distance
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.world_model import PopulationWorldModel, WorldModel
 
@@ -153,12 +153,13 @@ def imagined_accuracy(
 
     With an ensemble of K > 1 MDNs, the members' disagreement as a detector of wrong imagined
     states (:func:`disagreement_detection`): ``disagreement_auroc``, ``disagreement_mean``,
-    ``state_agreed_half`` and ``state_disagreed_half``; and the agent's gate
-    (``imagination_gate``; ``mask`` for an agent without one) applied to these transitions,
-    its threshold set by the first steps of these same rollouts, which stand in for the
-    agent's recent ones: ``accepted`` (the share kept), ``state_accepted`` and
-    ``state_rejected`` (``state`` over the kept and the dropped; NaN for none) and
-    ``gate_threshold``."""
+    ``state_agreed_half`` and ``state_disagreed_half``. With the agent's M_R in its checkpoint,
+    ``support_auroc``: the same for the support distance (:func:`imagine.gate.support_distance`).
+    With either, the agent's gate (``imagination_gate``; ``mask`` for an agent without one, on
+    its ``imagination_uncertainty``) applied to these transitions, its threshold set by the
+    first steps of these same rollouts, which stand in for the agent's recent ones:
+    ``accepted`` (the share kept), ``state_accepted`` and ``state_rejected`` (``state`` over
+    the kept and the dropped; NaN for none) and ``gate_threshold``."""
     c = agent.config
     envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
     obs, info = envs.reset(seed=seed)
@@ -193,6 +194,13 @@ def imagined_accuracy(
     out["transitions"] = float(len(right))
     if c.model_ensemble > 1:
         out |= disagreement_detection(rollout["disagreement"].numpy(), right)
+    if agent.memory_starts is not None:
+        support = support_distance(rollout["z"], rollout["action"], *agent.memory_starts)
+        out["support_auroc"] = auroc(support.numpy(), ~right)
+        if c.imagination_uncertainty == "support":
+            rollout["disagreement"] = support  # what the agent's gate judges
+    gated_by_support = c.imagination_uncertainty == "support" and "support_auroc" in out
+    if c.model_ensemble > 1 or gated_by_support:
         out |= gate_judgement(agent.config, rollout, right, generator)
     return out
 

@@ -2,8 +2,8 @@
 updates a step makes, decided by M's own signals and no per-task number.
 
 **Gates** (``imagination_gate``) judge each step's rollouts after they are imagined (the
-rollouts themselves, and every random draw in them, are those of an ungated agent). With u the
-members' disagreement of a transition (:mod:`imagine.imagination`) and the threshold
+rollouts themselves, and every random draw in them, are those of an ungated agent). With u a
+transition's uncertainty (``imagination_uncertainty``) and the threshold
 
     tau = imagination_gate_scale * quantile_q(U_1),   q = imagination_gate_quantile,
 
@@ -23,6 +23,22 @@ this step's included (linear interpolation between order statistics, ``torch.qua
   selection from the mere loss of imagined data. Its "current acceptance rate" is thus
   exactly ``mask``'s on the very same transitions.
 - ``none``: everything is kept (the paper).
+
+**Uncertainty** u of an imagined transition (z, a, z'), either
+
+- ``disagreement``: the members' mean pairwise distance between their modes of z'
+  (:mod:`imagine.imagination`; K >= 2), or
+- ``support``: how far M extrapolates from its data, the distance from z to the nearest start
+  latent of a real transition with the same action in the agent's M_R,
+
+      u = min_{j : a_j = a} || z - mu_j ||_2      (:func:`support_distance`).
+
+  An MDN that has seen (s, a) predicts it; the wrong imagined transitions are mostly where C's
+  greedy choice in imagination takes an action the agent never took from a state like z, and
+  the members of an ensemble trained on the same data can agree on a wrong extrapolation
+  there. Measured on the fast preset's agents (``scripts/uncertainty_check.py``, README), u
+  detects wrong imagined states better than the members' disagreement, and it needs no
+  ensemble.
 
 The acceptance of a step is the share of its imagined transitions kept; the agent's
 **running acceptance** a is their running mean over its imagination steps,
@@ -64,6 +80,23 @@ TRUST_RECENT = 100
 
 TIE = 1e-6
 """Distances this close to the nearest count as nearest (actions with the same outcome)."""
+
+
+FAR = 1e6
+"""The support distance of a transition whose action M_R does not hold at all."""
+
+
+def support_distance(
+    z: torch.Tensor, action: torch.Tensor, memory_mu: torch.Tensor, memory_action: torch.Tensor
+) -> torch.Tensor:
+    """Per transition (z (N, D), action (N,)), the distance to the nearest start latent of the
+    real transitions (memory_mu (M, D), memory_action (M,)) with the same action; :data:`FAR`
+    where there is none."""
+    if len(z) == 0 or len(memory_mu) == 0:
+        return torch.full((len(z),), FAR, device=z.device)
+    distance = torch.cdist(z, memory_mu)  # (N, M)
+    other = action.unsqueeze(1) != memory_action.unsqueeze(0)
+    return distance.masked_fill(other, FAR).min(-1).values.clamp(max=FAR)
 
 
 def gate_threshold(first_steps: torch.Tensor, quantile: float, scale: float) -> torch.Tensor:

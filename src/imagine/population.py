@@ -45,7 +45,13 @@ from imagine.controller import Controller, PopulationController, epsilon
 from imagine.env.rules import N_ACTIONS, REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
-from imagine.gate import TRUST_RECENT, ModelTrust, imaginary_updates, one_step_right
+from imagine.gate import (
+    TRUST_RECENT,
+    ModelTrust,
+    imaginary_updates,
+    one_step_right,
+    support_distance,
+)
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent
@@ -246,8 +252,10 @@ class Population:
             disagreement = transitions.pop("disagreement")
             rollout, step = transitions.pop("rollout"), transitions.pop("step")
             totals = self._episode[i]
+            if c.imagination_uncertainty == "support":
+                disagreement = self._support(i, transitions["z"], transitions["action"])
             totals.imagined += len(disagreement)
-            if c.model_ensemble > 1:
+            if c.model_ensemble > 1 or c.imagination_uncertainty == "support":
                 totals.add_disagreement(float(disagreement.sum()))
             if self.trust.on:
                 keep = self.trust.gate(i, disagreement, rollout, step, gens[i])
@@ -269,6 +277,13 @@ class Population:
                 b["z"], b["action"], b["reward"], b["next_z"], b["done"], learning
             )
             self._record("losses/controller_imaginary", loss, rows)
+
+    def _support(self, agent: int, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The support distance of an agent's imagined transitions to its M_R
+        (:func:`imagine.gate.support_distance`)."""
+        held = self.real.size[agent]
+        return support_distance(z, action, self.real.data["mu"][agent, :held],
+                                self.real.data["action"][agent, :held])  # fmt: skip
 
     def _imaginary_updates(self, agents: list[int]) -> dict[int, int]:
         """N_I of each agent this step: the config's, or with ``imagination_adaptive`` N_I
