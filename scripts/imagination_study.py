@@ -135,6 +135,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100, **SUPPORT_TRUST},
     ),
+    "diagnosis: augmented, I_start 100, a perfect M (the rules through V)": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, "imagination_model": "true"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -348,3 +348,30 @@ def test_macrostate_separation_measures_the_microstates_against_the_macrostates(
     assert quiet["between_std_per_dimension"] == pytest.approx([1.155, 2.309], abs=0.02)
     assert quiet["separation_ratio"] > 20  # images sit on their macrostate's mean
     assert loud["separation_ratio"] < 1  # the microstate is louder than the macrostate
+
+
+def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway():
+    """imagination_model=true (the diagnostic): imagination rolls out the rules through the
+    encoder, so every transition in M_I is the true successor with the rules' reward and end,
+    while M still learns from M_R."""
+    from imagine.config import agent_preset
+    from imagine.encoder import OracleEncoder
+    from imagine.env.rules import apply_actions, is_terminal, rewards
+    from imagine.population import Population
+
+    config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
+                          imagination_model="true", seed=1)  # fmt: skip
+    encoder = OracleEncoder()
+    p = Population([config], encoder)
+    before = [w.clone() for w in p.model.parameters()]
+    for _ in range(15):
+        p.step()
+    held = p.imaginary.size[0]
+    data = {k: v[0, :held] for k, v in p.imaginary.data.items()}
+    assert held > 0
+    states = encoder.classify(data["z"]).numpy()
+    truth = apply_actions(states, data["action"].numpy())
+    assert (encoder.classify(data["next_z"]).numpy() == truth).all()
+    assert data["reward"].numpy() == pytest.approx(rewards(truth, config.task))
+    assert (data["done"].numpy() == is_terminal(truth, config.task)).all()
+    assert any(not torch.equal(a, b) for a, b in zip(before, p.model.parameters(), strict=True))

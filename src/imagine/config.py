@@ -301,6 +301,11 @@ class AgentConfig:
     (:mod:`imagine.gate`): stop (MACURA: a rollout ends at its first
     u > tau, that transition not kept), mask (M2AC: each u > tau dropped), random (the control:
     as many as mask drops, chosen at random) or none (all kept; the paper)."""
+    imagination_model: str = "learned"
+    """What imagination rolls out: the agent's learned M (the paper), or ``true``: the
+    environment's rules observed through V (:mod:`imagine.true_model`; a diagnostic of what a
+    perfect M would give with this V, as the oracle encoder is for V; never a result). M is
+    trained either way."""
     imagination_uncertainty: str = "disagreement"
     """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):
     disagreement (the members' mean pairwise distance between their modes of z'; needs
@@ -356,7 +361,7 @@ class AgentConfig:
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode"),
                    "imagination_from": ("current", "memory"),
-                   "imagination_gate": GATES,
+                   "imagination_gate": GATES, "imagination_model": ("learned", "true"),
                    "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

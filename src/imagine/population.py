@@ -55,6 +55,7 @@ from imagine.gate import (
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent
+from imagine.true_model import TrueLatentModel
 from imagine.world_model import PopulationWorldModel, WorldModel
 
 FORMAT = "imagine-agent-3"
@@ -116,6 +117,9 @@ class Population:
         self.trust = ModelTrust(c, P, self.device)
         self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
         self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
+        self.imagined_by = self.model  # what imagination rolls out (imagination_model)
+        if c.imagination_model == "true":
+            self.imagined_by = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed)
         self.envs.reset(seed=[x.seed for x in configs])
         self.episode = [0] * P  # episodes finished
         self.t = [0] * P  # real time steps taken
@@ -244,7 +248,7 @@ class Population:
         if c.imagination_epsilon >= 0:
             eps = [c.imagination_epsilon] * self.size
         rollouts = imagine_rollouts(
-            self.model, self.controller, mu, sigma, c.imagination_breadth,
+            self.imagined_by, self.controller, mu, sigma, c.imagination_breadth,
             c.imagination_depth, eps, gens, draw=c.imagination_draw, scale=scale,
         )  # fmt: skip
         for i in imagining:
