@@ -139,6 +139,23 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100, "imagination_model": "true"},
     ),
+    "diagnosis: as s26, rollouts from states of M_R (Dyna)": (
+        "augmented",
+        {
+            "imagination_draw": "mode",
+            "imagination_start": 100,
+            "imagination_model": "true",
+            "imagination_from": "memory",
+        },
+    ),
+    "augmented, mode, I_start 100, rollouts from states of M_R (Dyna)": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, "imagination_from": "memory"},
+    ),
+    "augmented, mode, I_start 100, N_I = 3": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, "n_imaginary_updates": 3},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
