@@ -156,6 +156,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100, "n_imaginary_updates": 3},
     ),
+    "augmented, mode, I_start 100, M x4 updates (8 x 128 per step)": (
+        "augmented",
+        {"imagination_draw": "mode", "imagination_start": 100, "model_updates": 8},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
