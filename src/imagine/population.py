@@ -372,7 +372,7 @@ class Population:
             tensors |= self.trust.state_dict("gate", agent)
         tensors["rng.generator"] = self.generators[agent].get_state()
         save_tensors(folder / "agent.safetensors", tensors)
-        state = self.envs._rngs[agent].bit_generator.state
+        state = self.envs._rng(agent).bit_generator.state
         write_json(folder / "agent.json", {
             "format": FORMAT, "episode": self.episode[agent], "t": self.t[agent],
             "controller_updates": int(self.controller.updates[agent]),
@@ -410,7 +410,7 @@ class Population:
         if self.trust.on:
             self.trust.load_state_dict(tensors, "gate", agent)
         self.generators[agent].set_state(tensors["rng.generator"])
-        self.envs._rngs[agent].bit_generator.state = meta["env_rng"]
+        self.envs._rng(agent).bit_generator.state = meta["env_rng"]
         self.episode[agent], self.t[agent] = int(meta["episode"]), int(meta["t"])
         self.controller.updates[agent] = int(meta["controller_updates"])
         window = meta.get("window", {})

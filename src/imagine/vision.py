@@ -54,10 +54,10 @@ class ConvVAE(nn.Module):
         super().__init__()
         self.latent_dim = latent_dim
         self.encoder = nn.Sequential(
-            nn.Conv2d(3, 32, 4, stride=2), nn.ReLU(),
-            nn.Conv2d(32, 64, 4, stride=2), nn.ReLU(),
-            nn.Conv2d(64, 128, 4, stride=2), nn.ReLU(),
-            nn.Conv2d(128, 256, 4, stride=2), nn.ReLU(),
+            nn.Conv2d(3, 32, 4, stride=2), nn.ReLU(inplace=True),
+            nn.Conv2d(32, 64, 4, stride=2), nn.ReLU(inplace=True),
+            nn.Conv2d(64, 128, 4, stride=2), nn.ReLU(inplace=True),
+            nn.Conv2d(128, 256, 4, stride=2), nn.ReLU(inplace=True),
             nn.Flatten(),
         )  # fmt: skip
         self.fc_mu = nn.Linear(1024, latent_dim)
