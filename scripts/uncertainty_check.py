@@ -18,17 +18,11 @@ from __future__ import annotations
 import argparse
 
 import torch
-from gymnasium.vector import AutoresetMode
 
 from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
-from imagine.controller import PopulationController
-from imagine.env.rules import apply_actions
-from imagine.env.vector import GesturePuzzleVectorEnv
-from imagine.evaluate import auroc
+from imagine.evaluate import auroc, imagined_transitions
 from imagine.gate import support_distance
-from imagine.imagination import imagine_rollouts, posterior_scale
-from imagine.world_model import PopulationWorldModel
 
 
 @torch.no_grad()
@@ -40,25 +34,9 @@ def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
     memory_mu = tensors["real.mu"][:held]
     memory_action = tensors["real.action"][: len(memory_mu)]
     memory_next = tensors["real.next_mu"][: len(memory_mu)]
-    envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
-    obs, info = envs.reset(seed=seed)
-    mu, sigma = agent.encoder.encode(obs, info["macrostate"])
-    breadth = c.imagination_breadth
-    scale = posterior_scale(sigma).repeat_interleave(breadth).unsqueeze(0)
-    if c.model_latents == "mu":
-        sigma = torch.zeros_like(sigma)
-    model = PopulationWorldModel([agent.model]).eval()
-    controller = PopulationController([agent.controller]).eval()
-    eps = c.imagination_epsilon if c.imagination_epsilon >= 0 else c.eps_min
-    generator = torch.Generator().manual_seed(seed)
-    r = imagine_rollouts(
-        model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
-        sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
-        [generator], draw="mode", scale=scale,
-    )[0]  # fmt: skip
-    state = agent.encoder.classify(r["z"]).numpy()
-    truth = apply_actions(state, r["action"].numpy())
-    wrong = ~(agent.encoder.classify(r["next_z"]).numpy() == truth).all(-1)
+    r, _, right = imagined_transitions(agent, starts, torch.Generator().manual_seed(seed),
+                                       draw="mode")  # fmt: skip
+    wrong = ~right
     mdn = agent.model.mdn if hasattr(agent.model, "mdn") else agent.model
     mixture = mdn(r["z"], r["action"])
     out = {

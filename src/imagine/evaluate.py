@@ -161,18 +161,53 @@ def imagined_accuracy(
     ``accepted`` (the share kept), ``state_accepted`` and ``state_rejected`` (``state`` over
     the kept and the dropped; NaN for none) and ``gate_threshold``."""
     c = agent.config
+    generator = torch.Generator().manual_seed(seed)
+    rollout, truth, right = imagined_transitions(agent, starts, generator, model, draw)
+    levels = np.array([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
+    reward = levels[np.abs(rollout["reward"].numpy()[:, None] - levels).argmin(-1)]
+    done = rollout["done"].numpy().astype(bool)
+    judged = {
+        "state": right,
+        "first_step": right[: starts * c.imagination_breadth],  # time-major: first steps
+        "reward": reward == rewards(truth, c.task),
+        "terminal": done == is_terminal(truth, c.task),
+    }
+    out = {key: float(values.mean()) for key, values in judged.items()}
+    out["transitions"] = float(len(right))
+    if c.model_ensemble > 1:
+        out |= disagreement_detection(rollout["disagreement"].numpy(), right)
+    uncertainty = rollout["disagreement"]  # what the agent's gate judges
+    if agent.memory_starts is not None:
+        support = support_distance(rollout["z"], rollout["action"], *agent.memory_starts)
+        out["support_auroc"] = auroc(support.numpy(), ~right)
+        if c.imagination_uncertainty == "support":
+            uncertainty = support
+    gated_by_support = c.imagination_uncertainty == "support" and "support_auroc" in out
+    if c.model_ensemble > 1 or gated_by_support:
+        out |= gate_judgement(agent.config, rollout, uncertainty, right, generator)
+    return out
+
+
+@torch.no_grad()
+def imagined_transitions(
+    agent, starts: int, generator: torch.Generator, model=None, draw: str | None = None
+) -> tuple[dict[str, torch.Tensor], np.ndarray, np.ndarray]:
+    """The transitions imagination hands C from ``starts`` real start observations (first
+    images of new episodes, the env seeded by the generator's initial seed), as
+    :func:`imagined_accuracy` describes them; with the true successor macrostate of each
+    (V's classifier reading z, the rules applying a) and whether z' shows it."""
+    c = agent.config
     envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
-    obs, info = envs.reset(seed=seed)
+    obs, info = envs.reset(seed=generator.initial_seed())
     mu, sigma = agent.encoder.encode(obs, info["macrostate"])
-    scale = posterior_scale(sigma).repeat_interleave(c.imagination_breadth).unsqueeze(0)
+    breadth = c.imagination_breadth
+    scale = posterior_scale(sigma).repeat_interleave(breadth).unsqueeze(0)
     if c.model_latents == "mu":
         sigma = torch.zeros_like(sigma)
     if model is None:
         model = PopulationWorldModel([agent.model]).eval()
     controller = PopulationController([agent.controller]).eval()
     eps = c.imagination_epsilon if c.imagination_epsilon >= 0 else c.eps_min
-    generator = torch.Generator().manual_seed(seed)
-    breadth = c.imagination_breadth
     rollout = imagine_rollouts(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
@@ -181,38 +216,21 @@ def imagined_accuracy(
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())
     right = (agent.encoder.classify(rollout["next_z"]).numpy() == truth).all(-1)
-    levels = np.array([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
-    reward = levels[np.abs(rollout["reward"].numpy()[:, None] - levels).argmin(-1)]
-    done = rollout["done"].numpy().astype(bool)
-    judged = {
-        "state": right,
-        "first_step": right[: starts * breadth],  # time-major: every rollout's first step
-        "reward": reward == rewards(truth, c.task),
-        "terminal": done == is_terminal(truth, c.task),
-    }
-    out = {key: float(values.mean()) for key, values in judged.items()}
-    out["transitions"] = float(len(right))
-    if c.model_ensemble > 1:
-        out |= disagreement_detection(rollout["disagreement"].numpy(), right)
-    if agent.memory_starts is not None:
-        support = support_distance(rollout["z"], rollout["action"], *agent.memory_starts)
-        out["support_auroc"] = auroc(support.numpy(), ~right)
-        if c.imagination_uncertainty == "support":
-            rollout["disagreement"] = support  # what the agent's gate judges
-    gated_by_support = c.imagination_uncertainty == "support" and "support_auroc" in out
-    if c.model_ensemble > 1 or gated_by_support:
-        out |= gate_judgement(agent.config, rollout, right, generator)
-    return out
+    return rollout, truth, right
 
 
 def gate_judgement(
-    config, rollout: dict[str, torch.Tensor], right: np.ndarray, generator: torch.Generator
+    config,
+    rollout: dict[str, torch.Tensor],
+    disagreement: torch.Tensor,
+    right: np.ndarray,
+    generator: torch.Generator,
 ) -> dict[str, float]:
     """What the gate of ``config`` (``mask`` for ``none``) keeps of one agent's imagined
-    transitions ``rollout``, and how right (``right``, per transition) the kept and the
-    dropped are; the threshold from these rollouts' first steps."""
+    transitions ``rollout``, judged by their uncertainty ``disagreement``, and how right
+    (``right``, per transition) the kept and the dropped are; the threshold from these
+    rollouts' first steps."""
     rule = "mask" if config.imagination_gate == "none" else config.imagination_gate
-    disagreement = rollout["disagreement"]
     threshold = gate_threshold(disagreement[rollout["step"] == 0],
                                config.imagination_gate_quantile,
                                config.imagination_gate_scale)  # fmt: skip
