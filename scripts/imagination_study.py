@@ -33,6 +33,7 @@ HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
 TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
 SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
+DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
     "baseline": ("baseline", {}),
@@ -159,6 +160,23 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "augmented, mode, I_start 100, M x4 updates (8 x 128 per step)": (
         "augmented",
         {"imagination_draw": "mode", "imagination_start": 100, "model_updates": 8},
+    ),
+    # round 6: what separates a perfect M's Dyna (s27) from the learned M's (s28)
+    "diagnosis: as s27, the next macrostate's mean latent (a perfect M's mode, no fresh image)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_mean"},
+    ),
+    "augmented, I_start 100, Dyna, a draw from M's heaviest component": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "component"},
+    ),
+    "augmented, I_start 100, Dyna, M on mu, a draw from M's heaviest component": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "component", "model_latents": "mu"},
+    ),
+    "augmented, I_start 100, Dyna, M on mu, mode": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "model_latents": "mu"},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}

@@ -350,17 +350,18 @@ def test_macrostate_separation_measures_the_microstates_against_the_macrostates(
     assert loud["separation_ratio"] < 1  # the microstate is louder than the macrostate
 
 
-def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway():
+@pytest.mark.parametrize("model", ["true", "true_mean"])
+def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway(model):
     """imagination_model=true (the diagnostic): imagination rolls out the rules through the
     encoder, so every transition in M_I is the true successor with the rules' reward and end,
-    while M still learns from M_R."""
+    while M still learns from M_R; true_mean hands the successor's reference latent."""
     from imagine.config import agent_preset
     from imagine.encoder import OracleEncoder
-    from imagine.env.rules import apply_actions, is_terminal, rewards
+    from imagine.env.rules import apply_actions, is_terminal, macrostate_index, rewards
     from imagine.population import Population
 
     config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
-                          imagination_model="true", seed=1)  # fmt: skip
+                          imagination_model=model, seed=1)  # fmt: skip
     encoder = OracleEncoder()
     p = Population([config], encoder)
     before = [w.clone() for w in p.model.parameters()]
@@ -375,3 +376,29 @@ def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway():
     assert data["reward"].numpy() == pytest.approx(rewards(truth, config.task))
     assert (data["done"].numpy() == is_terminal(truth, config.task)).all()
     assert any(not torch.equal(a, b) for a, b in zip(before, p.model.parameters(), strict=True))
+    if model == "true_mean":
+        means = encoder.state_latents()[torch.as_tensor(macrostate_index(truth))]
+        assert torch.equal(data["next_z"], means)
+
+
+def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
+    """imagination_draw=component: M's most likely next macrostate, drawn with its spread; a
+    draw by the weights lands in the light component now and then."""
+    from imagine.world_model import Mixture, sample_mixture
+
+    n = 4000
+    log_pi = torch.log(torch.tensor([[0.3, 0.7]])).expand(n, 2)
+    mu = torch.tensor([[[10.0, 10.0], [0.0, 0.0]]]).expand(n, 2, 2)
+    mixture = Mixture(log_pi, mu, torch.full((n, 2, 2), 0.1))
+    heaviest = sample_mixture(mixture, torch.Generator().manual_seed(0), "heaviest")
+    weighted = sample_mixture(mixture, torch.Generator().manual_seed(0))
+    assert heaviest.abs().max() < 1.0 and heaviest.std(0).numpy() == pytest.approx([0.1] * 2,
+                                                                                   rel=0.1)
+    assert (weighted[:, 0] > 5).float().mean().item() == pytest.approx(0.3, abs=0.03)
+    torch.manual_seed(0)
+    population = PopulationWorldModel([WorldModel(3, dropout=0.0) for _ in range(2)])
+    z, a = torch.randn(2, 50, 3), torch.randint(6, (2, 50))
+    gens = [torch.Generator().manual_seed(1), None]
+    drawn = population.predict(z, a, gens, "component").next_z
+    mode = population.mode(z, a)
+    assert not torch.allclose(drawn[0], mode[0]) and torch.equal(drawn[1], torch.zeros(50, 3))

@@ -244,7 +244,9 @@ class AgentConfig:
     free and learns only the change."""
     imagination_draw: str = "sample"
     """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
-    then its Gaussian; the paper) or mode (the mean of the heaviest component)."""
+    then its Gaussian; the paper), mode (the mean of the heaviest component) or component (a
+    draw from the heaviest component's Gaussian: M's most likely next macrostate with the
+    spread of its images, as a real step draws new fragments)."""
     imagination_from: str = "current"
     """Where the I_B imagined rollouts of a step start: current (the paper: each from the agent's
     current latent state, so with a near-greedy C they retrace the path C is about to take) or
@@ -304,8 +306,10 @@ class AgentConfig:
     imagination_model: str = "learned"
     """What imagination rolls out: the agent's learned M (the paper), or ``true``: the
     environment's rules observed through V (:mod:`imagine.true_model`; a diagnostic of what a
-    perfect M would give with this V, as the oracle encoder is for V; never a result). M is
-    trained either way."""
+    perfect M would give with this V, as the oracle encoder is for V; never a result), or
+    ``true_mean``: the same rules, the next state the mean latent of the next macrostate's
+    images instead of a fresh image (a perfect M's mode: what separates it from ``true`` is
+    the spread of the images). M is trained either way."""
     imagination_uncertainty: str = "disagreement"
     """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):
     disagreement (the members' mean pairwise distance between their modes of z'; needs
@@ -359,9 +363,9 @@ class AgentConfig:
                    "encoder": ("vae", "oracle"),
                    "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
-                   "imagination_draw": ("sample", "mode"),
+                   "imagination_draw": ("sample", "mode", "component"),
                    "imagination_from": ("current", "memory"),
-                   "imagination_gate": GATES, "imagination_model": ("learned", "true"),
+                   "imagination_gate": GATES, "imagination_model": ("learned", "true", "true_mean"),
                    "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

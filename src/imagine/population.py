@@ -118,8 +118,9 @@ class Population:
         self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
         self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
-        if c.imagination_model == "true":
-            self.imagined_by = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed)
+        if c.imagination_model != "learned":
+            self.imagined_by = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
+                                               fresh=c.imagination_model == "true")  # fmt: skip
         self.envs.reset(seed=[x.seed for x in configs])
         self.episode = [0] * P  # episodes finished
         self.t = [0] * P  # real time steps taken

@@ -72,10 +72,15 @@ def mixture_from_heads(
     return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma)
 
 
-def sample_mixture(m: Mixture, generator: torch.Generator) -> torch.Tensor:
-    """One draw per row of mixtures (N, ...): a component from the weights, then from its
-    Gaussian."""
-    k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
+def sample_mixture(
+    m: Mixture, generator: torch.Generator, component: str = "weights"
+) -> torch.Tensor:
+    """One draw per row of mixtures (N, ...): a component from the weights (or, with
+    ``component="heaviest"``, the heaviest one), then a draw from its Gaussian."""
+    if component == "heaviest":
+        k = m.log_pi.argmax(-1, keepdim=True)  # (N, 1)
+    else:
+        k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
     index = k.unsqueeze(-1).expand(-1, 1, m.mu.shape[-1])
     mu, sigma = m.mu.gather(1, index).squeeze(1), m.sigma.gather(1, index).squeeze(1)
     eps = torch.randn(mu.shape, generator=generator, device=mu.device)
@@ -250,6 +255,10 @@ class StackedMDN(nn.Module):
         return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
 
 
+_COMPONENT = {"sample": "weights", "component": "heaviest"}
+"""Which component a draw of imagination (``imagination_draw``) takes its Gaussian from."""
+
+
 class Prediction(NamedTuple):
     next_z: torch.Tensor
     """(P, N, D) the imagined next states."""
@@ -350,12 +359,13 @@ class PopulationWorldModel(nn.Module):
         draw: str = "sample",
     ) -> Prediction:
         """The next state of rows (P, N, D) for each agent with a generator (zeros for the
-        others, with ``sample``), as imagination draws it: a sample of M's mixture, or its
-        ``mode``; with K > 1 members, each row from the member drawn for it
+        others, with ``sample`` and ``component``), as imagination draws it: a sample of M's
+        mixture, its ``mode``, or a draw from its heaviest component's Gaussian
+        (``component``); with K > 1 members, each row from the member drawn for it
         (:meth:`_draw_members`). With the members' disagreement about the row."""
         if self.ensemble == 1:
             next_z = self._mode_one(z, action) if draw == "mode" else self._sample_one(
-                z, action, generators)  # fmt: skip
+                z, action, generators, draw)  # fmt: skip
             return Prediction(next_z, torch.zeros(z.shape[:-1], device=z.device))
         P, N, D = z.shape
         zs, actions = self._each_member(z), self._each_member(action)
@@ -371,7 +381,8 @@ class PopulationWorldModel(nn.Module):
             for i, generator in enumerate(generators):
                 if generator is not None:
                     chosen = [h[i, member[i], rows] for h in per_member]
-                    next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator)
+                    next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator,
+                                               _COMPONENT[draw])  # fmt: skip
         return Prediction(next_z, members_spread(modes))
 
     @torch.no_grad()
@@ -396,7 +407,11 @@ class PopulationWorldModel(nn.Module):
         return self.predict(z, action, generators or [None] * len(z), "mode").next_z
 
     def _sample_one(
-        self, z: torch.Tensor, action: torch.Tensor, generators: Sequence[torch.Generator | None]
+        self,
+        z: torch.Tensor,
+        action: torch.Tensor,
+        generators: Sequence[torch.Generator | None],
+        draw: str = "sample",
     ) -> torch.Tensor:
         """:meth:`sample` of a one-member M. The mixture is formed agent by agent: softplus
         rounds some elements differently at a tensor's end, so one agent's few rows must be a
@@ -405,7 +420,8 @@ class PopulationWorldModel(nn.Module):
         out = torch.zeros_like(z)
         for i, generator in enumerate(generators):
             if generator is not None:
-                out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator)
+                out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
+                                        _COMPONENT[draw])  # fmt: skip
         return out
 
     def _mode_one(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
