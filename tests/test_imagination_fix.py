@@ -1,6 +1,8 @@
 """Issue 14's levers: M on V's means, imagination from M's mode, V's latent activity, the
 linear probe and the learning-curve summary."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -392,8 +394,9 @@ def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
     mixture = Mixture(log_pi, mu, torch.full((n, 2, 2), 0.1))
     heaviest = sample_mixture(mixture, torch.Generator().manual_seed(0), "heaviest")
     weighted = sample_mixture(mixture, torch.Generator().manual_seed(0))
-    assert heaviest.abs().max() < 1.0 and heaviest.std(0).numpy() == pytest.approx([0.1] * 2,
-                                                                                   rel=0.1)
+    assert heaviest.abs().max() < 1.0 and heaviest.std(0).numpy() == pytest.approx(
+        [0.1] * 2, rel=0.1
+    )
     assert (weighted[:, 0] > 5).float().mean().item() == pytest.approx(0.3, abs=0.03)
     torch.manual_seed(0)
     population = PopulationWorldModel([WorldModel(3, dropout=0.0) for _ in range(2)])
@@ -402,3 +405,25 @@ def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
     drawn = population.predict(z, a, gens, "component").next_z
     mode = population.mode(z, a)
     assert not torch.allclose(drawn[0], mode[0]) and torch.equal(drawn[1], torch.zeros(50, 3))
+
+
+def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
+    """An agent that imagines from M_R (imagination_from=memory) is judged on rollouts from
+    the states its M_R holds, as it imagines in training; others from new episodes' starts."""
+    from imagine.agent import Agent
+    from imagine.encoder import OracleEncoder
+    from imagine.env.rules import all_macrostates, start_states
+    from imagine.evaluate import imagined_transitions
+
+    encoder = OracleEncoder()
+    held = all_macrostates()[[5, 77, 150]]  # none of them a start state of `hard`
+    memory = (encoder.state_latents()[[5, 77, 150]], torch.zeros(3, dtype=torch.int64))
+    config = agent_preset("smoke", task="hard", encoder="oracle", imagination_draw="mode")
+    torch.manual_seed(0)
+    nets = Controller(8), WorldModel(8)
+    for start, expected in (("memory", held), ("current", start_states("hard"))):
+        agent = Agent(replace(config, imagination_from=start), encoder, *nets, 0, 0, memory)
+        rollout, _, _ = imagined_transitions(agent, 30, torch.Generator().manual_seed(0),
+                                             RuleModel(encoder, "hard"))  # fmt: skip
+        first = encoder.classify(rollout["z"][rollout["step"] == 0]).numpy()
+        assert {tuple(s) for s in first} <= {tuple(s) for s in expected}

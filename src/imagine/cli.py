@@ -371,8 +371,11 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
+    from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
+    where = "M_R" if from_memory else "new episodes"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "
-          "states, I_B x I_D) right: state {state:.1%} (first step {first_step:.1%}), reward "
+          f"states from {where}, I_B x I_D) right: "
+          "state {state:.1%} (first step {first_step:.1%}), reward "
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined))  # fmt: skip
     print(f"the same M with imagination_draw={other}: state {{state:.1%}}, reward "
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip

@@ -141,7 +141,8 @@ def imagined_accuracy(
     agent, starts: int = 100, seed: int = 0, model=None, draw: str | None = None
 ) -> dict[str, float]:
     """How right the transitions are that imagination hands C. From ``starts`` real start
-    observations (first images of new episodes), the agent's I_B rollouts of up to I_D steps,
+    states (first images of new episodes, or states of its M_R for an agent that imagines from
+    there: :func:`imagined_transitions`), the agent's I_B rollouts of up to I_D steps,
     as Algorithm 1 imagines them (its start, draw and epsilon settings; the real epsilon taken
     at its floor). Each imagined transition (z, a, z', r, d) is judged by V's latent
     classifier, which the agent never uses: ``state`` when the macrostate read from z' is the
@@ -192,14 +193,22 @@ def imagined_accuracy(
 def imagined_transitions(
     agent, starts: int, generator: torch.Generator, model=None, draw: str | None = None
 ) -> tuple[dict[str, torch.Tensor], np.ndarray, np.ndarray]:
-    """The transitions imagination hands C from ``starts`` real start observations (first
-    images of new episodes, the env seeded by the generator's initial seed), as
+    """The transitions imagination hands C from ``starts`` real start states, as
     :func:`imagined_accuracy` describes them; with the true successor macrostate of each
-    (V's classifier reading z, the rules applying a) and whether z' shows it."""
+    (V's classifier reading z, the rules applying a) and whether z' shows it. The start
+    states are first images of new episodes (the env seeded by the generator's initial seed),
+    or, for an agent that imagines from M_R (``imagination_from: memory``) with its M_R in
+    the checkpoint, the mu of states drawn uniformly from M_R (its sigma is not saved: the
+    rollouts start from mu)."""
     c = agent.config
-    envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
-    obs, info = envs.reset(seed=generator.initial_seed())
-    mu, sigma = agent.encoder.encode(obs, info["macrostate"])
+    if c.imagination_from == "memory" and agent.memory_starts is not None:
+        held = agent.memory_starts[0]
+        mu = held[torch.randint(len(held), (starts,), generator=generator)]
+        sigma = torch.zeros_like(mu)
+    else:
+        envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
+        obs, info = envs.reset(seed=generator.initial_seed())
+        mu, sigma = agent.encoder.encode(obs, info["macrostate"])
     breadth = c.imagination_breadth
     scale = posterior_scale(sigma).repeat_interleave(breadth).unsqueeze(0)
     if c.model_latents == "mu":
