@@ -416,8 +416,8 @@ def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
     from imagine.evaluate import imagined_transitions
 
     encoder = OracleEncoder()
-    held = all_macrostates()[[5, 77, 150]]  # none of them a start state of `hard`
-    memory = (encoder.state_latents()[[5, 77, 150]], torch.zeros(3, dtype=torch.int64))
+    held = all_macrostates()[[5, 17, 77]]  # terminal states: never a start of `hard`
+    memory = (encoder.state_latents()[[5, 17, 77]], torch.zeros(3, dtype=torch.int64))
     config = agent_preset("smoke", task="hard", encoder="oracle", imagination_draw="mode")
     torch.manual_seed(0)
     nets = Controller(8), WorldModel(8)
