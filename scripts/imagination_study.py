@@ -178,6 +178,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**DYNA_100, "imagination_draw": "mode", "model_latents": "mu"},
     ),
+    "augmented, I_start 100, Dyna, mode, imagined updates only while M is trusted": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "imagination_adaptive": True},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
