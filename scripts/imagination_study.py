@@ -182,6 +182,14 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**DYNA_100, "imagination_draw": "mode", "imagination_adaptive": True},
     ),
+    "diagnosis: as s28, the rules' reward and end (the learned M's next state)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_reward"},
+    ),
+    "diagnosis: as s31, the learned reward and end (the rules' next state, mean latent)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_state"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -26,6 +26,8 @@ from imagine.errors import ConfigError
 PRESETS = ("paper", "fast", "smoke")
 GATES = ("none", "stop", "mask", "random")
 """The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
+IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_state")
+"""The choices of ``AgentConfig.imagination_model`` (:mod:`imagine.true_model`)."""
 UNCERTAINTIES = ("disagreement", "support")
 """The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
 
@@ -309,7 +311,9 @@ class AgentConfig:
     perfect M would give with this V, as the oracle encoder is for V; never a result), or
     ``true_mean``: the same rules, the next state the mean latent of the next macrostate's
     images instead of a fresh image (a perfect M's mode: what separates it from ``true`` is
-    the spread of the images). M is trained either way."""
+    the spread of the images); ``true_reward``: the learned M's next state with the rules'
+    reward and end; ``true_state``: the rules' next state (as ``true_mean``) with the learned
+    r- and d-networks. M is trained either way."""
     imagination_uncertainty: str = "disagreement"
     """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):
     disagreement (the members' mean pairwise distance between their modes of z'; needs
@@ -365,7 +369,7 @@ class AgentConfig:
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode", "component"),
                    "imagination_from": ("current", "memory"),
-                   "imagination_gate": GATES, "imagination_model": ("learned", "true", "true_mean"),
+                   "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
                    "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

@@ -55,7 +55,7 @@ from imagine.gate import (
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent
-from imagine.true_model import TrueLatentModel
+from imagine.true_model import SplitModel, TrueLatentModel
 from imagine.world_model import PopulationWorldModel, WorldModel
 
 FORMAT = "imagine-agent-3"
@@ -119,8 +119,11 @@ class Population:
         self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
         if c.imagination_model != "learned":
-            self.imagined_by = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
-                                               fresh=c.imagination_model == "true")  # fmt: skip
+            rules = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
+                                    fresh=c.imagination_model == "true")  # fmt: skip
+            self.imagined_by = {"true_reward": SplitModel(self.model, rules),
+                                "true_state": SplitModel(rules, self.model)}.get(
+                                    c.imagination_model, rules)  # fmt: skip
         self.envs.reset(seed=[x.seed for x in configs])
         self.episode = [0] * P  # episodes finished
         self.t = [0] * P  # real time steps taken

@@ -67,3 +67,22 @@ class TrueLatentModel:
     def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
         r = torch.as_tensor(rewards(self._states(z), self.task), dtype=torch.float32)
         return r.to(z.device).view(z.shape[:-1])
+
+
+class SplitModel:
+    """Imagination's next state from one M and its reward and end from another: the
+    diagnostics ``imagination_model: true_reward`` (the learned M's next state, the rules'
+    reward and end) and ``true_state`` (the rules' next state as its mean latent, the learned
+    r- and d-networks), which tell which part of a learned M costs the agent what."""
+
+    def __init__(self, state_from, reward_from) -> None:
+        self.state_from, self.reward_from = state_from, reward_from
+
+    def predict(self, z, action, generators=(), draw: str = "mode") -> Prediction:
+        return self.state_from.predict(z, action, generators, draw)
+
+    def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
+        return self.reward_from.is_terminal(z)
+
+    def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.reward_from.predict_reward(z)
