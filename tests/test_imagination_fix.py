@@ -427,3 +427,34 @@ def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
                                              RuleModel(encoder, "hard"))  # fmt: skip
         first = encoder.classify(rollout["z"][rollout["step"] == 0]).numpy()
         assert {tuple(s) for s in first} <= {tuple(s) for s in expected}
+
+
+def test_split_models_take_the_state_from_one_m_and_the_reward_from_the_other():
+    """true_reward: the learned M's next states with the rules' reward and end of whatever
+    state it imagined; true_state: the rules' next states with the learned r and d."""
+    from imagine.encoder import OracleEncoder
+    from imagine.env.rules import apply_actions, is_terminal, macrostate_index, rewards
+    from imagine.population import Population
+
+    encoder = OracleEncoder()
+    held = {}
+    for model in ("true_reward", "true_state"):
+        config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
+                              imagination_model=model, imagination_draw="mode", seed=1)  # fmt: skip
+        p = Population([config], encoder)
+        for _ in range(15):
+            p.step()
+        n = p.imaginary.size[0]
+        held[model] = data = {k: v[0, :n] for k, v in p.imaginary.data.items()}
+        imagined = encoder.classify(data["next_z"]).numpy()
+        if model == "true_reward":
+            assert data["reward"].numpy() == pytest.approx(rewards(imagined, config.task))
+            assert (data["done"].numpy() == is_terminal(imagined, config.task)).all()
+        else:
+            truth = apply_actions(encoder.classify(data["z"]).numpy(), data["action"].numpy())
+            means = encoder.state_latents()[torch.as_tensor(macrostate_index(truth))]
+            assert torch.equal(data["next_z"], means)
+            # r has learned since the earlier steps: the newest transition is r's of now
+            learned = p.model.predict_reward(data["next_z"][-1:].unsqueeze(0))[0]
+            assert torch.allclose(data["reward"][-1:], learned)
+            assert not np.isin(data["reward"].numpy(), [-1.0, -5.0, 50.0]).all()
