@@ -190,6 +190,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_state"},
     ),
+    "diagnosis: as s28, the rules' end (the learned M's next state and reward)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_end"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

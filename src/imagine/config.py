@@ -26,7 +26,7 @@ from imagine.errors import ConfigError
 PRESETS = ("paper", "fast", "smoke")
 GATES = ("none", "stop", "mask", "random")
 """The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
-IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_state")
+IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_end", "true_state")
 """The choices of ``AgentConfig.imagination_model`` (:mod:`imagine.true_model`)."""
 UNCERTAINTIES = ("disagreement", "support")
 """The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
@@ -312,7 +312,8 @@ class AgentConfig:
     ``true_mean``: the same rules, the next state the mean latent of the next macrostate's
     images instead of a fresh image (a perfect M's mode: what separates it from ``true`` is
     the spread of the images); ``true_reward``: the learned M's next state with the rules'
-    reward and end; ``true_state``: the rules' next state (as ``true_mean``) with the learned
+    reward and end; ``true_end``: the learned next state and reward, the rules' end;
+    ``true_state``: the rules' next state (as ``true_mean``) with the learned
     r- and d-networks. M is trained either way."""
     imagination_uncertainty: str = "disagreement"
     """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):

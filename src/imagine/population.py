@@ -122,6 +122,7 @@ class Population:
             rules = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
                                     fresh=c.imagination_model == "true")  # fmt: skip
             self.imagined_by = {"true_reward": SplitModel(self.model, rules),
+                                "true_end": SplitModel(self.model, self.model, rules),
                                 "true_state": SplitModel(rules, self.model)}.get(
                                     c.imagination_model, rules)  # fmt: skip
         self.envs.reset(seed=[x.seed for x in configs])
