@@ -376,7 +376,8 @@ def evaluate_agent(
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "
           f"states from {where}, I_B x I_D) right: "
           "state {state:.1%} (first step {first_step:.1%}), reward "
-          "{reward:.1%}, terminal {terminal:.1%}".format(**imagined))  # fmt: skip
+          "{reward:.1%} (mean error of r {reward_error:.2f}), terminal {terminal:.1%}"
+          .format(**imagined))  # fmt: skip
     print(f"the same M with imagination_draw={other}: state {{state:.1%}}, reward "
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip
     if detection is not None:

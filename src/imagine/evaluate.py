@@ -147,7 +147,9 @@ def imagined_accuracy(
     at its floor). Each imagined transition (z, a, z', r, d) is judged by V's latent
     classifier, which the agent never uses: ``state`` when the macrostate read from z' is the
     true successor of the one read from z under a; ``reward`` and ``terminal`` when r and d
-    are those of that true successor; ``first_step``: ``state`` on first steps only;
+    are those of that true successor (r rounded to the nearest of the task's rewards;
+    ``reward_error``: the mean absolute difference of r itself, what C learns from);
+    ``first_step``: ``state`` on first steps only;
     ``transitions``: how many were judged. ``model``: a population-form M to judge instead of
     the agent's; ``draw``: ``sample`` or ``mode`` in place of the agent's ``imagination_draw``
     (the same M judged both ways).
@@ -174,6 +176,7 @@ def imagined_accuracy(
         "terminal": done == is_terminal(truth, c.task),
     }
     out = {key: float(values.mean()) for key, values in judged.items()}
+    out["reward_error"] = float(np.abs(rollout["reward"].numpy() - rewards(truth, c.task)).mean())
     out["transitions"] = float(len(right))
     if c.model_ensemble > 1:
         out |= disagreement_detection(rollout["disagreement"].numpy(), right)
