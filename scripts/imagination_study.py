@@ -194,6 +194,14 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**DYNA_100, "imagination_draw": "mode", "imagination_model": "true_end"},
     ),
+    "augmented, I_start 100, Dyna, mode, r and d 8 updates per step (6 alone)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6},
+    ),
+    "augmented, I_start 100, Dyna, mode, r and d 16 updates per step (14 alone)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "reward_updates": 14},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

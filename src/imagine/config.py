@@ -284,6 +284,10 @@ class AgentConfig:
     """Capacity of the imaginary memory M_I (first in, first out)."""
     model_updates: int = 16
     """N_E: updates of each of M's networks per time step."""
+    reward_updates: int = 0
+    """Extra updates per time step of M's r- and d-networks alone, on batches of
+    ``model_batch`` (0: the paper, N_E for all three). Early, r and d know the few goal and
+    illegal states seen and generalize poorly to the rest (README, issue 14, round 6)."""
     model_batch: int = 512
     """Real transitions per M update."""
     model_lr: float = 1e-3
@@ -386,7 +390,7 @@ class AgentConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
-        for name in ("model_updates", "n_real_updates", "n_imaginary_updates",
+        for name in ("model_updates", "reward_updates", "n_real_updates", "n_imaginary_updates",
                      "target_update_period", "imagination_start", "seed"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")

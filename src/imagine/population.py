@@ -175,6 +175,9 @@ class Population:
             losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
+        for _ in range(c.reward_updates if c.trains_model else 0):  # r and d alone
+            batch = self.real.sample(c.model_batch, gens)
+            self.model.update(batch, gens, resample=c.model_latents == "sample", mdn=False)
         self._learn_from_real(live, c.n_real_updates, "losses/controller_real")
         if c.real_in_place_of_imagined:  # the control for imagination, from I_start on
             past = [i for i in live if self.episode[i] >= c.imagination_start]

@@ -440,37 +440,40 @@ class PopulationWorldModel(nn.Module):
         batch: dict[str, torch.Tensor],
         generators: Sequence[torch.Generator | None],
         resample: bool = True,
+        mdn: bool = True,
     ) -> dict[str, torch.Tensor]:
         """One update of each network of every agent whose generator is given, on its batch
         (P, K * B, ...) from the real memory: K bootstrap batches of B one after the other,
         member k of the MDN learning from the k-th (PETS), r and d from the first. With
         ``resample`` latents are drawn from V's N(mu, sigma) (the paper's data augmentation);
         without, M learns from V's means. Returns the three losses per agent (P,), the MDN's
-        averaged over its members (each member's gradient is that of its own loss)."""
+        averaged over its members (each member's gradient is that of its own loss). Without
+        ``mdn``, r and d alone (a batch (P, B, ...); ``reward_updates``)."""
         agents = [i for i, g in enumerate(generators) if g is not None]
         if resample:
-            z = agent_normal(batch["mu"], batch["sigma"], generators)
             next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
         else:
-            z, next_z = batch["mu"], batch["next_mu"]
-        member_z = self._member_rows(z)
-        heads = self._heads(member_z, self._member_rows(batch["action"]), generators)
-        mdn = mixture_nll(self._mixture(heads, member_z), self._member_rows(next_z)).mean(-1)
-        mdn = mdn.view(len(generators), self.ensemble)  # (P, K)
-        first = slice(0, batch["action"].shape[1] // self.ensemble)  # member 0's batch
+            next_z = batch["next_mu"]
+        losses = {}
+        if mdn:
+            z = agent_normal(batch["mu"], batch["sigma"], generators) if resample else batch["mu"]
+            member_z = self._member_rows(z)
+            heads = self._heads(member_z, self._member_rows(batch["action"]), generators)
+            nll = mixture_nll(self._mixture(heads, member_z), self._member_rows(next_z)).mean(-1)
+            losses["mdn"] = nll.view(len(generators), self.ensemble)  # (P, K)
+        first = slice(0, batch["action"].shape[1] // (self.ensemble if mdn else 1))  # member 0's
         reward = self.reward(next_z[:, first], generators).squeeze(-1)
         terminal = self.terminal(next_z[:, first], generators).squeeze(-1)
-        losses = {
-            "mdn": mdn,
-            "reward": log_cosh(reward - batch["reward"][:, first]).mean(-1),
-            "terminal": F.binary_cross_entropy_with_logits(
-                terminal, batch["done"][:, first], reduction="none"
-            ).mean(-1),
-        }
+        losses["reward"] = log_cosh(reward - batch["reward"][:, first]).mean(-1)
+        losses["terminal"] = F.binary_cross_entropy_with_logits(
+            terminal, batch["done"][:, first], reduction="none"
+        ).mean(-1)
         self.optimizer.zero_grad()
         sum(loss[agents].sum() for loss in losses.values()).backward()
         self.optimizer.step(agents)
-        losses["mdn"] = mdn.mean(-1) if self.ensemble > 1 else mdn[:, 0]
+        if mdn:
+            nll = losses["mdn"]
+            losses["mdn"] = nll.mean(-1) if self.ensemble > 1 else nll[:, 0]
         return {name: loss.detach() for name, loss in losses.items()}
 
     # --- one agent's M as a single-agent module ---------------------------------------------------
