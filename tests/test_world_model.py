@@ -129,6 +129,28 @@ def test_world_model_update_resamples_latents_and_lowers_losses():
     assert all(torch.equal(p[1], q) for p, q in zip(population.parameters(), frozen, strict=True))
 
 
+def test_updates_of_r_and_d_alone_leave_the_mdn_as_it_is_and_lower_their_losses():
+    """reward_updates: r and d learn on their own; the MDN's weights and Adam state stay."""
+    torch.manual_seed(0)
+    population = PopulationWorldModel([WorldModel(latent_dim=4, dropout=0.0)])
+    gens = [torch.Generator().manual_seed(0)]
+    n = 256
+    next_mu = torch.randn(1, n, 4)
+    reward, done = rule(next_mu[0])
+    batch = {"mu": torch.randn(1, n, 4), "sigma": torch.full((1, n, 4), 0.01),
+             "action": torch.randint(6, (1, n)), "next_mu": next_mu,
+             "next_sigma": torch.full((1, n, 4), 0.01), "reward": reward[None],
+             "done": done[None]}  # fmt: skip
+    population.update(batch, gens)  # one joint update: every network has Adam state
+    mdn = [p.clone() for p in population.mdn.parameters()]
+    first = population.update(batch, gens, mdn=False)
+    for _ in range(100):
+        last = population.update(batch, gens, mdn=False)
+    assert set(first) == {"reward", "terminal"}
+    assert all(last[k][0] < 0.5 * first[k][0] for k in first)
+    assert all(torch.equal(p, q) for p, q in zip(population.mdn.parameters(), mdn, strict=True))
+
+
 def test_population_samples_come_from_each_agents_mixture():
     torch.manual_seed(0)
     models = [WorldModel(latent_dim=2, dropout=0.0) for _ in range(2)]
