@@ -1,5 +1,6 @@
 """V, the beta-VAE: shapes, the loss, training, checkpoints and the latent classifier."""
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -184,6 +185,14 @@ def test_finished_results_are_never_cut_back(tmp_path):
     assert len((tmp_path / "metrics.csv").read_text().splitlines()) == 3
 
 
+@pytest.fixture(scope="module")
+def one_epoch_run(tmp_path_factory) -> Path:
+    """A smoke V trained for one epoch, once for the tests that spoil a copy of it."""
+    folder = tmp_path_factory.mktemp("one-epoch")
+    smoke(folder, epochs=1)
+    return folder
+
+
 @pytest.mark.parametrize(
     "document, message",
     [
@@ -192,8 +201,8 @@ def test_finished_results_are_never_cut_back(tmp_path):
         ('{"format": "other", "epoch": 1, "config": {}}', "not a V checkpoint"),
     ],
 )
-def test_malformed_metadata_is_reported(tmp_path, document, message):
-    smoke(tmp_path, epochs=1)
+def test_malformed_metadata_is_reported(one_epoch_run, tmp_path, document, message):
+    shutil.copytree(one_epoch_run, tmp_path, dirs_exist_ok=True)
     (tmp_path / "vae.json").write_text(document)
     with pytest.raises(CheckpointError, match=message):
         load_vae(tmp_path)
