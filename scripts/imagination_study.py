@@ -13,7 +13,8 @@ non-terminal transitions at the last budget.
 for the method with V, a diagnosis of what V costs.
 
 Finished runs are read back; a stopped study resumes (it is `imagine reproduce`'s job machinery).
-Every setting spells out the fields it tests, so it means the same whatever the preset's defaults.
+Every setting spells out the fields it tests on the former `fast` imagination (FORMER_FAST), so it
+means the same whatever the preset's defaults.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
 TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
 SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
+FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0}
+"""The `fast` preset's imagination before round 6 made Dyna's its default: every setting
+starts from it, so a setting means what it meant when it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
@@ -209,7 +213,7 @@ SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 def jobs_of(setting: str, out: Path, tasks: list[str], seeds: int, budgets: tuple[int, ...],
             vae: str) -> list[Job]:  # fmt: skip
     method, overrides = SETTINGS[setting]
-    fields = tuple(sorted(overrides.items()))
+    fields = tuple(sorted({**FORMER_FAST, **overrides}.items()))
     return [
         Job(
             str(out / SHORT[setting] / f"{task}-{seed}"),
