@@ -162,7 +162,7 @@ def test_statistics_and_tables():
         ({"budgets": ()}, "budgets must be positive"),
         ({"backend": "slurm"}, "unknown backend"),
         ({"preset": "huge"}, "preset"),
-        ({"budgets": (500,)}, "beyond the episode budget"),
+        ({"budgets": (80,)}, "beyond the episode budget"),  # fast: I_start 100
     ],
 )
 def test_bad_study_settings(values, message):
