@@ -450,13 +450,14 @@ class PopulationWorldModel(nn.Module):
         averaged over its members (each member's gradient is that of its own loss). Without
         ``mdn``, r and d alone (a batch (P, B, ...); ``reward_updates``)."""
         agents = [i for i, g in enumerate(generators) if g is not None]
+        if mdn:  # z drawn before next_z: the random streams of the paper's update
+            z = agent_normal(batch["mu"], batch["sigma"], generators) if resample else batch["mu"]
         if resample:
             next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
         else:
             next_z = batch["next_mu"]
         losses = {}
         if mdn:
-            z = agent_normal(batch["mu"], batch["sigma"], generators) if resample else batch["mu"]
             member_z = self._member_rows(z)
             heads = self._heads(member_z, self._member_rows(batch["action"]), generators)
             nll = mixture_nll(self._mixture(heads, member_z), self._member_rows(next_z)).mean(-1)
