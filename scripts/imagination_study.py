@@ -206,6 +206,35 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**DYNA_100, "imagination_draw": "mode", "reward_updates": 14},
     ),
+    "augmented, as s39 (the fast preset), r's loss the squared error": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6, "reward_loss": "mse"},
+    ),
+    "augmented, I_start 100, Dyna, mode, r's loss the squared error (r and d 2 updates)": (
+        "augmented",
+        {**DYNA_100, "imagination_draw": "mode", "reward_loss": "mse"},
+    ),
+    "augmented, as s41, a residual M with 20% dropout": (
+        "augmented",
+        {
+            **DYNA_100,
+            "imagination_draw": "mode",
+            "reward_updates": 6,
+            "reward_loss": "mse",
+            "model_residual": True,
+            "dropout": 0.2,
+        },
+    ),
+    "augmented, as s39, a residual M with 20% dropout": (
+        "augmented",
+        {
+            **DYNA_100,
+            "imagination_draw": "mode",
+            "reward_updates": 6,
+            "model_residual": True,
+            "dropout": 0.2,
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

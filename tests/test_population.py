@@ -40,7 +40,7 @@ def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overr
     settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,
                 "imagination_start": 60, "log_every": 10, "accuracy_every": 50,
                 "checkpoint_every": 50, **overrides}  # fmt: skip
-    seeds = (0, 1, 2)
+    seeds = (0, 1)  # agent 1 shares the stacked networks and memory with agent 0
     configs = [agent_preset("smoke", seed=s, **settings) for s in seeds]
     together = [tmp_path / f"together-{s}" for s in seeds]
     train_population(configs, together, threads=1)

@@ -161,3 +161,33 @@ def test_population_samples_come_from_each_agents_mixture():
     assert torch.equal(drawn[0], torch.zeros(3, 2))  # no generator, no draw
     expected = models[1].mdn.sample(z[1], a[1], torch.Generator().manual_seed(3))
     assert torch.allclose(drawn[1], expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_squared_error_teaches_r_a_rare_large_reward_that_log_cosh_does_not(seed):
+    """reward_loss: with 2% of next states worth +50 and the rest -1, 100 updates of r with
+    the squared error predict most of the +50; with log-cosh (gradient at most 1 per
+    transition) r barely leaves the common -1."""
+
+    def goal_prediction(loss: str) -> tuple[float, float]:
+        torch.manual_seed(seed)
+        model = WorldModel(latent_dim=4, dropout=0.0, reward_hidden=64)
+        population = PopulationWorldModel([model], reward_loss=loss)
+        gens = [torch.Generator().manual_seed(0)]
+        next_mu = torch.randn(1, 256, 4, generator=torch.Generator().manual_seed(1))
+        goal = next_mu[0, :, 0] > 2.0
+        batch = {"mu": torch.randn(1, 256, 4), "sigma": torch.full((1, 256, 4), 0.01),
+                 "action": torch.randint(6, (1, 256)), "next_mu": next_mu,
+                 "next_sigma": torch.full((1, 256, 4), 0.01),
+                 "reward": torch.where(goal, 50.0, -1.0)[None],
+                 "done": goal.float()[None]}  # fmt: skip
+        for _ in range(100):
+            population.update(batch, gens, mdn=False)
+        r = population.predict_reward(next_mu)[0]
+        assert goal.sum() >= 3
+        return float(r[goal].mean()), float(r[~goal].mean())
+
+    squared_goal, squared_rest = goal_prediction("mse")
+    cosh_goal, cosh_rest = goal_prediction("logcosh")
+    assert squared_goal > 25.0 and cosh_goal < 10.0
+    assert abs(squared_rest + 1.0) < 0.5 and abs(cosh_rest + 1.0) < 0.5

@@ -28,6 +28,8 @@ GATES = ("none", "stop", "mask", "random")
 """The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
 IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_end", "true_state")
 """The choices of ``AgentConfig.imagination_model`` (:mod:`imagine.true_model`)."""
+REWARD_LOSSES = ("logcosh", "mse")
+"""The choices of ``AgentConfig.reward_loss`` (:data:`imagine.world_model.REWARD_LOSSES`)."""
 UNCERTAINTIES = ("disagreement", "support")
 """The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
 
@@ -288,6 +290,10 @@ class AgentConfig:
     """Extra updates per time step of M's r- and d-networks alone, on batches of
     ``model_batch`` (0: the paper, N_E for all three). Early, r and d know the few goal and
     illegal states seen and generalize poorly to the rest (README, issue 14, round 6)."""
+    reward_loss: str = "logcosh"
+    """The r-network's loss: logcosh (the paper) or mse. Log-cosh's gradient is at most 1
+    per transition, so the rare +50 of a goal state moves r little against the many -1s; the
+    squared error's grows with the error (README, issue 14, round 7)."""
     model_batch: int = 512
     """Real transitions per M update."""
     model_lr: float = 1e-3
@@ -375,6 +381,7 @@ class AgentConfig:
                    "imagination_draw": ("sample", "mode", "component"),
                    "imagination_from": ("current", "memory"),
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
+                   "reward_loss": REWARD_LOSSES,
                    "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

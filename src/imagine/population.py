@@ -110,7 +110,9 @@ class Population:
             [n[0].to(self.device) for n in networks], lr=c.controller_lr, gamma=c.gamma,
             target_update_period=c.target_update_period, double_dqn=c.double_dqn,
         )  # fmt: skip
-        self.model = PopulationWorldModel([n[1].to(self.device) for n in networks], c.model_lr)
+        self.model = PopulationWorldModel(
+            [n[1].to(self.device) for n in networks], c.model_lr, c.reward_loss
+        )
         self.templates = copy.deepcopy(networks[0])  # single-agent modules for export
         self.real = ReplayMemory(c.real_memory, real_fields(d), P, self.device)
         self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)

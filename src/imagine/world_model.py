@@ -150,6 +150,16 @@ def log_cosh(x: torch.Tensor) -> torch.Tensor:
     return a + torch.log1p(torch.exp(-2 * a)) - math.log(2.0)
 
 
+def squared(x: torch.Tensor) -> torch.Tensor:
+    """x^2: the mean squared error's term. Unlike log-cosh, whose gradient is at most 1, its
+    gradient grows with the error, so r's few large errors (an unseen +50) dominate a batch."""
+    return x.square()
+
+
+REWARD_LOSSES = {"logcosh": log_cosh, "mse": squared}
+"""The r-network's losses per transition (``AgentConfig.reward_loss``; the paper's log-cosh)."""
+
+
 class RewardNet(nn.Module):
     """The r-network: reward for entering a state, from the state alone."""
 
@@ -276,8 +286,11 @@ class PopulationWorldModel(nn.Module):
     Members are independent networks (PETS, Chua et al. 2018): each its own initialization,
     its own bootstrap batch of M_R in :meth:`update` and its own dropout masks."""
 
-    def __init__(self, models: Sequence[WorldModel], lr: float = 1e-3) -> None:
+    def __init__(
+        self, models: Sequence[WorldModel], lr: float = 1e-3, reward_loss: str = "logcosh"
+    ) -> None:
         super().__init__()
+        self.reward_loss = REWARD_LOSSES[reward_loss]
         first = models[0]
         self.latent_dim, self.n_actions = first.mdn.latent_dim, first.mdn.n_actions
         self.min_sigma, self.residual = first.mdn.min_sigma, first.mdn.residual
@@ -465,7 +478,7 @@ class PopulationWorldModel(nn.Module):
         first = slice(0, batch["action"].shape[1] // (self.ensemble if mdn else 1))  # member 0's
         reward = self.reward(next_z[:, first], generators).squeeze(-1)
         terminal = self.terminal(next_z[:, first], generators).squeeze(-1)
-        losses["reward"] = log_cosh(reward - batch["reward"][:, first]).mean(-1)
+        losses["reward"] = self.reward_loss(reward - batch["reward"][:, first]).mean(-1)
         losses["terminal"] = F.binary_cross_entropy_with_logits(
             terminal, batch["done"][:, first], reduction="none"
         ).mean(-1)
