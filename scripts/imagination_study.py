@@ -34,9 +34,12 @@ HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
 TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
 SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
-FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0}
-"""The `fast` preset's imagination before round 6 made Dyna's its default: every setting
-starts from it, so a setting means what it meant when it ran."""
+FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
+               "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
+               "reward_dropout": None}  # fmt: skip
+"""The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
+squared error for r and a residual M with 20% dropout): every setting starts from it, so a
+setting means what it meant when it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
@@ -233,6 +236,18 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "reward_updates": 6,
             "model_residual": True,
             "dropout": 0.2,
+        },
+    ),
+    "augmented, as s41, a residual M with 20% dropout in the MDN (none in r and d)": (
+        "augmented",
+        {
+            **DYNA_100,
+            "imagination_draw": "mode",
+            "reward_updates": 6,
+            "reward_loss": "mse",
+            "model_residual": True,
+            "dropout": 0.2,
+            "reward_dropout": 0.0,
         },
     ),
 }

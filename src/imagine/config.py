@@ -305,7 +305,9 @@ class AgentConfig:
     own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
     drawn per step and logs the members' disagreement. 1: one MDN (the paper)."""
     dropout: float = 0.5
-    """Dropout in M's networks."""
+    """Dropout in M's networks (the paper: 50% in all three)."""
+    reward_dropout: float | None = None
+    """Dropout in the r- and d-networks apart from the MDN's; None: ``dropout``."""
     reward_hidden: int = 512
     """Units in each of the r-network's 3 hidden layers (paper: 512)."""
     imagination_gate: str = "none"
@@ -435,6 +437,12 @@ class AgentConfig:
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"agent.dropout must be in [0, 1), got {self.dropout}")
+        if self.reward_dropout is not None and not (
+            isinstance(self.reward_dropout, int | float) and 0.0 <= self.reward_dropout < 1.0
+        ):
+            raise ConfigError(
+                f"agent.reward_dropout must be in [0, 1) or null, got {self.reward_dropout!r}"
+            )
         if not 0.0 <= self.eps_min <= self.eps_max <= 1.0:
             raise ConfigError("agent epsilons must satisfy 0 <= eps_min <= eps_max <= 1")
         if self.model_batch > self.real_memory or self.real_batch > self.real_memory:

@@ -78,6 +78,7 @@ def new_networks(config: AgentConfig, latent_dim: int) -> tuple[Controller, Worl
     model = WorldModel(latent_dim, n_components=config.n_components, dropout=config.dropout,
                        reward_hidden=config.reward_hidden,
                        residual=config.model_residual,
+                       reward_dropout=config.reward_dropout,
                        ensemble=config.model_ensemble)  # fmt: skip
     return controller, model
 

@@ -207,16 +207,18 @@ class WorldModel(nn.Module):
         reward_hidden: int = 512,
         residual: bool = False,
         ensemble: int = 1,
+        reward_dropout: float | None = None,
     ) -> None:
         super().__init__()
         self.dropout = dropout
+        self.reward_dropout = dropout if reward_dropout is None else reward_dropout
 
         def mdn() -> MDN:
             return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual)
 
         self.mdn = mdn()
-        self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=dropout)
-        self.terminal = TerminalNet(latent_dim, dropout=dropout)
+        self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
+        self.terminal = TerminalNet(latent_dim, dropout=self.reward_dropout)
         self.more_mdns = nn.ModuleList(mdn() for _ in range(ensemble - 1))
 
     @property
@@ -300,8 +302,8 @@ class PopulationWorldModel(nn.Module):
         p = first.dropout
         # registered in the order a one-member WorldModel registers them (optimizer indices)
         self.mdn = StackedMDN([mdn for m in models for mdn in m.members], p)
-        self.reward = StackedMLP([m.reward.net for m in models], p)
-        self.terminal = StackedMLP([m.terminal.net for m in models], p)
+        self.reward = StackedMLP([m.reward.net for m in models], first.reward_dropout)
+        self.terminal = StackedMLP([m.terminal.net for m in models], first.reward_dropout)
         n_mdn = len(list(self.mdn.parameters()))
         n_rest = len(list(self.parameters())) - n_mdn
         self.optimizer = PopulationAdam(
