@@ -91,6 +91,10 @@ def test_bad_imagination_choices_are_refused():
         agent_preset("fast", imagination_epsilon=1.5)
     with pytest.raises(ConfigError, match="latent_space must be one of posterior, standardized"):
         agent_preset("fast", latent_space="whitened")
+    with pytest.raises(ConfigError, match="reward_loss must be one of logcosh, mse"):
+        agent_preset("fast", reward_loss="huber")
+    with pytest.raises(ConfigError, match=r"reward_dropout must be in \[0, 1\) or null"):
+        agent_preset("fast", reward_dropout=1.0)
 
 
 def test_latent_activity_finds_the_collapsed_dimensions():

@@ -191,3 +191,16 @@ def test_the_squared_error_teaches_r_a_rare_large_reward_that_log_cosh_does_not(
     cosh_goal, cosh_rest = goal_prediction("logcosh")
     assert squared_goal > 25.0 and cosh_goal < 10.0
     assert abs(squared_rest + 1.0) < 0.5 and abs(cosh_rest + 1.0) < 0.5
+
+
+def test_r_and_d_take_their_own_dropout_and_the_mdn_keeps_its_own():
+    """reward_dropout: r and d without dropout beside an MDN with 20%; None keeps one rate."""
+    assert WorldModel(4, dropout=0.2).reward_dropout == 0.2  # the paper's one rate
+    population = PopulationWorldModel([WorldModel(4, dropout=0.2, reward_dropout=0.0)])
+    assert (population.mdn.body.dropout, population.reward.dropout) == (0.2, 0.0)
+    assert population.terminal.dropout == 0.0
+    z, gens = torch.randn(1, 64, 4), [torch.Generator().manual_seed(0)]
+    r = [population.reward(z, gens) for _ in range(2)]
+    assert torch.equal(r[0], r[1])  # no masks drawn in training mode
+    masked = PopulationWorldModel([WorldModel(4, dropout=0.2)])
+    assert not torch.equal(masked.reward(z, gens), masked.reward(z, gens))
