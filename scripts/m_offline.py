@@ -4,11 +4,11 @@ the cheap way to tell which of M's settings makes it right on V's latents (issue
     .venv/bin/python scripts/m_offline.py RUN [RUN ...] [--updates 4000] [--batch 128]
 
 For each run (its last checkpoint: real memory M_R, V, task) and each variant (M's latents:
-samples of N(mu, sigma) or V's means; M's mean head: the next state or its change), trains a
-fresh M (seed 0, no dropout) with ``--updates`` Adam steps on batches from that memory and
-prints M's accuracy as `imagine evaluate` measures it: the most likely next state on the
-non-terminal transitions, a sample of M on the same, and the most likely next state from the
-terminal states M never trained on (generalization).
+samples of N(mu, sigma) or V's means; M's mean head: the next state or its change; dropout in
+all three of M's networks), trains a fresh M (seed 0) with ``--updates`` Adam steps on batches
+from that memory and prints M's accuracy as `imagine evaluate` measures it: the most likely
+next state on the non-terminal transitions, a sample of M on the same, and the most likely next
+state from the terminal states M never trained on (generalization).
 """
 
 from __future__ import annotations
@@ -25,11 +25,14 @@ from imagine.evaluate import model_accuracy
 from imagine.memory import ReplayMemory, real_fields
 from imagine.world_model import PopulationWorldModel, WorldModel
 
-VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head)
-    "samples, next state (paper)": (True, False),
-    "samples, change of state": (True, True),
-    "means, next state": (False, False),
-    "means, change of state": (False, True),
+VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, dropout in M)
+    "samples, next state (paper)": (True, False, 0.0),
+    "samples, change of state": (True, True, 0.0),
+    "means, next state": (False, False, 0.0),
+    "means, change of state": (False, True, 0.0),
+    "samples, next state, 50% dropout": (True, False, 0.5),
+    "samples, change of state, 50% dropout": (True, True, 0.5),
+    "samples, change of state, 20% dropout": (True, True, 0.2),
 }
 
 
@@ -42,9 +45,9 @@ def real_memory(run: Path, latent_dim: int) -> ReplayMemory:
 
 
 def train_m(memory: ReplayMemory, latent_dim: int, resample: bool, residual: bool,
-            updates: int, batch: int) -> WorldModel:  # fmt: skip
+            dropout: float, updates: int, batch: int) -> WorldModel:  # fmt: skip
     torch.manual_seed(0)
-    model = WorldModel(latent_dim, dropout=0.0, reward_hidden=128, residual=residual)
+    model = WorldModel(latent_dim, dropout=dropout, reward_hidden=128, residual=residual)
     population = PopulationWorldModel([model])
     generator = torch.Generator().manual_seed(0)
     for _ in range(updates):
@@ -66,9 +69,9 @@ def main() -> None:
         agent = load_agent(run)
         memory = real_memory(run, agent.encoder.latent_dim)
         print(f"{run}: {agent.episode} episodes, {len(memory)} real transitions", flush=True)
-        for name, (resample, residual) in VARIANTS.items():
-            model = train_m(memory, agent.encoder.latent_dim, resample, residual, args.updates,
-                            args.batch)  # fmt: skip
+        for name, (resample, residual, dropout) in VARIANTS.items():
+            model = train_m(memory, agent.encoder.latent_dim, resample, residual, dropout,
+                            args.updates, args.batch)  # fmt: skip
             a = model_accuracy(model, agent.encoder, agent.config.task)
             general = a["transition_terminal"]
             results[name].append((a["transition_nonterminal"], a["transition_sampled"], general))
