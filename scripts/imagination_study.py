@@ -41,6 +41,10 @@ FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward
 squared error for r and a residual M with 20% dropout): every setting starts from it, so a
 setting means what it meant when it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
+ROUND_6 = {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6}
+"""s39: the `fast` preset's imagination after round 6."""
+RESIDUAL_20 = {"model_residual": True, "dropout": 0.2}
+"""Round 7's M: the change of state, 20% dropout."""
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
     "baseline": ("baseline", {}),
@@ -211,7 +215,7 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     "augmented, as s39 (the fast preset), r's loss the squared error": (
         "augmented",
-        {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6, "reward_loss": "mse"},
+        {**ROUND_6, "reward_loss": "mse"},
     ),
     "augmented, I_start 100, Dyna, mode, r's loss the squared error (r and d 2 updates)": (
         "augmented",
@@ -219,36 +223,12 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     "augmented, as s41, a residual M with 20% dropout": (
         "augmented",
-        {
-            **DYNA_100,
-            "imagination_draw": "mode",
-            "reward_updates": 6,
-            "reward_loss": "mse",
-            "model_residual": True,
-            "dropout": 0.2,
-        },
+        {**ROUND_6, "reward_loss": "mse", **RESIDUAL_20},
     ),
-    "augmented, as s39, a residual M with 20% dropout": (
-        "augmented",
-        {
-            **DYNA_100,
-            "imagination_draw": "mode",
-            "reward_updates": 6,
-            "model_residual": True,
-            "dropout": 0.2,
-        },
-    ),
+    "augmented, as s39, a residual M with 20% dropout": ("augmented", {**ROUND_6, **RESIDUAL_20}),
     "augmented, as s41, a residual M with 20% dropout in the MDN (none in r and d)": (
         "augmented",
-        {
-            **DYNA_100,
-            "imagination_draw": "mode",
-            "reward_updates": 6,
-            "reward_loss": "mse",
-            "model_residual": True,
-            "dropout": 0.2,
-            "reward_dropout": 0.0,
-        },
+        {**ROUND_6, "reward_loss": "mse", **RESIDUAL_20, "reward_dropout": 0.0},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
