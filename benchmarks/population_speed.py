@@ -11,10 +11,12 @@ with the same number of threads. The last lines: peak memory of this process (it
 episodes through V (untrained weights; the cost does not depend on them).
 
     .venv/bin/python benchmarks/population_speed.py [--threads 1] [--steps 20]
-        [--presets fast,paper] [--set model_ensemble=5 ...]
+        [--presets fast,paper] [--set model_ensemble=5 ...] [--device cuda]
 
 ``--set KEY=VALUE`` changes a setting of every agent (as `imagine train --set` does), e.g. the
-ensemble size K of M's MDN.
+ensemble size K of M's MDN. ``--device cuda`` times the populations on a GPU (the peak is then the
+GPU's float32 matrix product, TF32 off, and with TF32 on, timed in the same run); the V line
+stays on the CPU.
 """
 
 from __future__ import annotations
@@ -29,39 +31,55 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from imagine.config import agent_preset, parse_assignments
+from imagine.devices import resolve_device
 from imagine.encoder import OracleEncoder
 from imagine.population import Population
 
 
-def peak_flops(n: int = 2048, repeats: int = 5) -> float:
-    a, b = torch.randn(n, n), torch.randn(n, n)
+def synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def peak_flops(n: int = 2048, repeats: int = 5, device: torch.device | None = None) -> float:
+    device = device or torch.device("cpu")
+    if device.type == "cuda":
+        n, repeats = 8192, 20
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
     a @ b
+    synchronize(device)
     start = time.perf_counter()
     for _ in range(repeats):
         a @ b
+    synchronize(device)
     return repeats * 2 * n**3 / (time.perf_counter() - start)
 
 
-def population(preset: str, agents: int, overrides: dict[str, Any] | None = None) -> Population:
+def population(
+    preset: str, agents: int, overrides: dict[str, Any] | None = None, device: str = "cpu"
+) -> Population:
     settings = {"encoder": "oracle", "method": "augmented", "imagination_start": 0,
                 "episodes": 10**6, **(overrides or {})}  # fmt: skip
     configs = [agent_preset(preset, seed=seed, **settings) for seed in range(agents)]
-    pop = Population(configs, OracleEncoder())
+    pop = Population(configs, OracleEncoder(), device)
     n, d = configs[0].model_batch * configs[0].model_ensemble, 8
     for i in range(agents):  # M_R needs a batch's worth before the first update
         pop.real.add(
-            i, mu=torch.randn(n, d), sigma=torch.full((n, d), 0.05),
-            action=torch.randint(6, (n,)), next_mu=torch.randn(n, d),
-            next_sigma=torch.full((n, d), 0.05), reward=torch.full((n,), -1.0),
-            done=torch.zeros(n),
+            i, mu=torch.randn(n, d, device=device), sigma=torch.full((n, d), 0.05, device=device),
+            action=torch.randint(6, (n,), device=device), next_mu=torch.randn(n, d, device=device),
+            next_sigma=torch.full((n, d), 0.05, device=device),
+            reward=torch.full((n,), -1.0, device=device), done=torch.zeros(n, device=device),
         )  # fmt: skip
     return pop
 
 
-def timed(fn, repeats: int) -> float:
+def timed(fn, repeats: int, device: torch.device | None = None) -> float:
+    device = device or torch.device("cpu")
+    synchronize(device)
     start = time.perf_counter()
     for _ in range(repeats):
         fn()
+    synchronize(device)
     return (time.perf_counter() - start) / repeats
 
 
@@ -73,17 +91,22 @@ def flops_of(fn) -> int:
 
 
 def measure(
-    preset: str, agents: int, steps: int, peak: float, overrides: dict[str, Any] | None = None
+    preset: str,
+    agents: int,
+    steps: int,
+    peak: float,
+    overrides: dict[str, Any] | None = None,
+    device: str = "cpu",
 ) -> dict[str, float]:
-    pop = population(preset, agents, overrides)
-    c = pop.config
+    pop = population(preset, agents, overrides, device)
+    c, dev = pop.config, pop.device
     pop.step()  # warm-up (and imagination memories filled)
     step_flops = flops_of(pop.step)
-    step_s = timed(pop.step, steps)
+    step_s = timed(pop.step, steps, dev)
     gens = list(pop.generators)
     batch = pop.real.sample(c.model_batch * c.model_ensemble, gens)
     update_flops = flops_of(lambda: pop.model.update(batch, gens))
-    update_s = timed(lambda: pop.model.update(batch, gens), max(steps, 5))
+    update_s = timed(lambda: pop.model.update(batch, gens), max(steps, 5), dev)
     return {
         "steps_per_s": agents / step_s,
         "step_ms": 1000 * step_s,
@@ -128,11 +151,22 @@ def main() -> None:
     parser.add_argument("--presets", default="fast,paper")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a setting of every agent, e.g. model_ensemble=5")  # fmt: skip
+    parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     args = parser.parse_args()
     overrides = parse_assignments(args.set)
     torch.set_num_threads(args.threads)
-    peak = peak_flops()
-    print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
+    device = resolve_device(args.device)
+    if device.type == "cuda":
+        torch.backends.cuda.matmul.allow_tf32 = True
+        tf32 = peak_flops(device=device)
+        torch.backends.cuda.matmul.allow_tf32 = False
+        peak = peak_flops(device=device)
+        name = torch.cuda.get_device_name(device)
+        print(f"peak: {name}, 8192x8192 matmul: float32 {peak / 1e12:.1f} TFLOP/s, "
+              f"TF32 {tf32 / 1e12:.1f} TFLOP/s (the % of peak below: float32)")  # fmt: skip
+    else:
+        peak = peak_flops()
+        print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
     if overrides:
         print("settings: " + ", ".join(f"{k}={v}" for k, v in overrides.items()))
     print(
@@ -143,7 +177,7 @@ def main() -> None:
     for preset in args.presets.split(","):
         for agents in (int(a) for a in args.agents.split(",")):
             steps = args.steps if preset == "fast" else 2
-            m = measure(preset, agents, steps, peak, overrides)
+            m = measure(preset, agents, steps, peak, overrides, args.device)
             cells = [preset, str(agents), f"{m['steps_per_s']:.1f}", f"{m['step_ms']:.1f}",
                      f"{m['m_update_ms']:.1f}", f"{100 * m['m_share']:.0f}%",
                      f"{100 * m['m_peak']:.0f}%", f"{100 * m['step_peak']:.0f}%",
@@ -151,6 +185,9 @@ def main() -> None:
             print("| " + " | ".join(cells) + " |", flush=True)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(f"peak memory of this process: {rss:.2f} GiB")
+    if device.type == "cuda":
+        gpu = torch.cuda.max_memory_allocated(device) / 2**30
+        print(f"peak GPU memory allocated: {gpu:.2f} GiB")
     seconds, _ = greedy_seconds()
     print(f"1000 greedy test episodes through V, {args.threads} thread(s): {seconds:.2f} s")
 

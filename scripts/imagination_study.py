@@ -230,6 +230,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, "reward_loss": "mse", **RESIDUAL_20, "reward_dropout": 0.0},
     ),
+    # round 8: from the fast preset (s44) towards a perfect M's 96.3 on hard (s27)
+    "augmented, as s44 (the fast preset), N_I = 2 imagined C updates per step": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "n_imaginary_updates": 2},
+    ),
+    "augmented, as s44 (the fast preset), no dropout in r and d": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "reward_dropout": 0.0},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

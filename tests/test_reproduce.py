@@ -74,13 +74,20 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "stop", [signal.SIGKILL, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)]
+    ("stop", "workers"),
+    [
+        (signal.SIGKILL, "1"),
+        (signal.SIGTERM, "2"),  # to the process group, as `timeout` or `kill -- -PGID` do
+        pytest.param(signal.SIGTERM, "1", marks=pytest.mark.slow),
+    ],
+    ids=["SIGKILL-all", "SIGTERM-all", "SIGTERM-main"],
 )
-def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop):
+def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop, workers):
     out = tmp_path / "study"
     args = [IMAGINE, "reproduce", str(out), *SMOKE, "--tasks", "original", "--oracle",
-            "--budgets", "30,60", "--workers", "1"]  # fmt: skip
-    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            "--budgets", "30,60", "--workers", workers]  # fmt: skip
+    log = (tmp_path / "stderr.txt").open("w")
+    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=log,
                                start_new_session=True)  # fmt: skip
     deadline = time.monotonic() + 240
     while len(evaluation_times(out)) < 3 and process.poll() is None:
@@ -89,6 +96,16 @@ def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop):
     if stop == signal.SIGKILL:  # the whole study, workers included, dies at once
         os.killpg(process.pid, signal.SIGKILL)
         process.wait()
+    elif workers == "2":  # the whole process group is told (as by Ctrl-C), workers too
+        os.killpg(process.pid, stop)
+        try:  # the study forwards the signal too: a worker that stopped must not die of it
+            process.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            raise AssertionError(f"the study hung after {stop.name}") from None
+        err = (tmp_path / "stderr.txt").read_text()
+        assert process.returncode == 128 + stop, err
+        assert "worker process died" not in err
     else:  # only the main process is told; it stops its workers cleanly
         os.kill(process.pid, signal.SIGTERM)
         assert process.wait(timeout=120) == 128 + signal.SIGTERM

@@ -321,13 +321,15 @@ class LocalRunner:
         the running ones (each checkpoints and stops), and :class:`Interrupted` is raised once
         they have."""
         from imagine.errors import ImagineError, Interrupted
-        from imagine.stopping import StopSignals
+        from imagine.stopping import StopSignals, note_signals_when_idle
 
         context = multiprocessing.get_context("spawn")
         with (
             job_folders_locked(jobs),
             StopSignals() as stop,
-            ProcessPoolExecutor(self.workers, mp_context=context) as pool,
+            ProcessPoolExecutor(
+                self.workers, mp_context=context, initializer=note_signals_when_idle
+            ) as pool,
         ):
             pending = {}
             queue = population_groups(jobs)
