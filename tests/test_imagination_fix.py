@@ -356,6 +356,31 @@ def test_macrostate_separation_measures_the_microstates_against_the_macrostates(
     assert loud["separation_ratio"] < 1  # the microstate is louder than the macrostate
 
 
+def test_a_diagonal_draw_leaks_from_clouds_whose_dimensions_move_together():
+    """draw_accuracy: a perfect M's diagonal Gaussian drawn from two macrostates' clouds, read
+    back by a classifier that reads every cloud point right. Round clouds: every draw right.
+    Clouds stretched along y = x on either side of it (V's dimensions moving together from image
+    to image): the diagonal Gaussian ignores the correlation and about half its draws cross."""
+    from imagine.env.rules import all_macrostates
+    from imagine.vision_report import draw_accuracy
+
+    two = all_macrostates()[:2]
+    states = np.repeat(two, 500, axis=0)
+    side = torch.tensor([[0.2, -0.2], [-0.2, 0.2]]).repeat_interleave(500, 0)  # below / above
+
+    def classify(z):  # below the line y = x: the first macrostate, above it: the second
+        return torch.as_tensor(two[(z[:, 1] > z[:, 0]).long().numpy()])
+
+    g = torch.Generator().manual_seed(0)
+    round_clouds = 5 * side + 0.05 * torch.randn(1000, 2, generator=g)
+    stretched = side + torch.randn(1000, 1, generator=g) * torch.tensor([1.0, 1.0])
+    assert (classify(stretched).numpy() == states).all()  # the clouds themselves are read right
+    assert draw_accuracy(round_clouds, states, classify) == {"scale_1": 1.0, "scale_0.5": 1.0}
+    leaky = draw_accuracy(stretched, states, classify)
+    assert 0.4 < leaky["scale_1"] < 0.7
+    assert leaky["scale_1"] < leaky["scale_0.5"] < 0.9  # a lower temperature leaks less
+
+
 @pytest.mark.parametrize("model", ["true", "true_mean"])
 def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway(model):
     """imagination_model=true (the diagnostic): imagination rolls out the rules through the

@@ -192,8 +192,9 @@ def vae_report(
     """Write reconstructions.png and traversals.png into RUN and print V's quality numbers:
     test reconstruction loss and KL per image, each latent dimension's KL and whether it has
     collapsed, how far apart the macrostates lie against the spread of one macrostate's images,
-    the MLP and linear probes' accuracy on fresh images, and (--agent) the accuracy
-    of an agent's M in this V's latent space."""
+    the MLP and linear probes' accuracy on fresh images, how often a draw of a perfect M
+    (diagonal Gaussians fitted to each macrostate's latents) is read back right, and (--agent)
+    the accuracy of an agent's M in this V's latent space."""
     from rich.table import Table
 
     from imagine.vision_report import report_run
@@ -228,6 +229,9 @@ def vae_report(
         for name, value in report[f"{probe}_accuracy"].items():
             label = "MLP probe" if probe == "classifier" else "linear probe"
             table.add_row(f"{label} accuracy: {name}", f"{100 * value:.2f}%")
+    for name, value in report["diagonal_draw_accuracy"].items():
+        label = f"right draws, best diagonal M, x {name.removeprefix('scale_')}"
+        table.add_row(label, f"{100 * value:.1f}%")
     if agent is not None:
         from imagine.vision_report import agent_model_accuracy
 

@@ -4,7 +4,8 @@ Writes ``reconstructions.png`` (test images beside their reconstructions, each o
 as its three strips side by side, as the scene), ``traversals.png`` (one row per latent
 dimension, that dimension swept from -3 to +3 around a test image's mean) and ``report.json``
 with the test reconstruction loss and KL per image and the latent classifier's accuracy on fresh
-test images (a seed V never saw), per cube arrow and for the hand.
+test images (a seed V never saw), per cube arrow and for the hand, and how often a draw of a
+perfect M with diagonal Gaussians can be right in this V's latent space (:func:`draw_accuracy`).
 """
 
 from __future__ import annotations
@@ -123,6 +124,48 @@ def macrostate_separation(mu: torch.Tensor, states: np.ndarray) -> dict[str, Any
     }
 
 
+DRAW_SCALES = (1.0, 0.5)
+"""Scales of the fitted Gaussians' standard deviations in :func:`draw_accuracy`."""
+
+
+def draw_accuracy(
+    mu: torch.Tensor,
+    states: np.ndarray,
+    classify,
+    scales: tuple[float, ...] = DRAW_SCALES,
+    seed: int = 0,
+) -> dict[str, float]:
+    """How often a draw of M *can* be right with this V, however well M is trained.
+
+    M's targets are V's means of fresh images of the next state, so even a perfect M's
+    component for a macrostate is a Gaussian of that macrostate's cloud of means, diagonal as
+    M's components are. Per macrostate, fit that Gaussian (mean and standard deviation per
+    dimension) to ``mu``, draw as many latents from it (standard deviations times each of
+    ``scales``: 1 is M's draw, below 1 a draw at a lower temperature) and read them back with
+    ``classify`` ((N, d) latents to (N, k) macrostates): the share read as the right one. A
+    cloud that is not axis-aligned (V's dimensions moving together from image to image) leaks
+    into its neighbours under a diagonal Gaussian, which the most likely state never does."""
+    from imagine.env.rules import macrostate_index
+
+    index = torch.as_tensor(macrostate_index(states))
+    generator = torch.Generator().manual_seed(seed)
+    draws = {scale: [] for scale in scales}
+    truth = []
+    for i in index.unique():
+        cloud = mu[index == i]
+        if len(cloud) < 2:
+            continue
+        noise = torch.randn(cloud.shape, generator=generator)
+        for scale in scales:
+            draws[scale].append(cloud.mean(0) + scale * cloud.std(0) * noise)
+        truth.append(states[(index == i).numpy()])
+    truth = np.concatenate(truth)
+    return {
+        f"scale_{scale:g}": float((classify(torch.cat(z)).numpy() == truth).all(-1).mean())
+        for scale, z in draws.items()
+    }
+
+
 def linear_probe_accuracy(
     fit_mu: torch.Tensor, fit_states: np.ndarray, mu: torch.Tensor, states: np.ndarray
 ) -> dict[str, float]:
@@ -161,6 +204,7 @@ def vision_report(
         "test_loss_per_image": test_loss["loss"],
         "classifier_accuracy": accuracy,
         "linear_probe_accuracy": linear_probe_accuracy(fit_mu, fit[1], mu, states),
+        "diagonal_draw_accuracy": draw_accuracy(mu, states, classifier.predict),
         "classifier_test_images": len(images),
         **latent_activity(mu, sigma),
         **macrostate_separation(mu, states),
