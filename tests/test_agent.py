@@ -124,6 +124,14 @@ def test_train_and_evaluate_commands(tmp_path):
     assert done.returncode == 0, done.stderr
     for s in (1, 3):
         assert load_agent(tmp_path / "pop" / f"seed-{s}").config.seed == s
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "set"), "--preset", "smoke",
+                           "--set", "encoder=oracle", "--set", "task=hard", "--episodes", "30",
+                           "--set", "imagination_start=10", "--seeds", "0-1"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr  # --set's fields are not overridden by defaults
+    for s in (0, 1):
+        saved = yaml.safe_load((tmp_path / "set" / f"seed-{s}" / "config.yaml").read_text())
+        assert (saved["encoder"], saved["task"], saved["seed"]) == ("oracle", "hard", s)
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "pop"), "--seeds", "1,x"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 2 and "--seeds expects comma-separated integers" in done.stderr

@@ -15,12 +15,47 @@ def run(*args):
     return subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False)
 
 
-@pytest.mark.parametrize(
-    "args", [["--help"], ["env", "--help"], ["env", "show", "--help"], ["dataset", "--help"]]
-)
-def test_help(args):
-    done = run(*args)
+def test_help():
+    done = run("--help")
     assert done.returncode == 0 and "Usage" in done.stdout
+
+
+def every_command():
+    """(words, command) for the `imagine` command and each of its subcommands."""
+    from typer.main import get_command
+
+    from imagine.cli import app
+
+    def walk(command, words):
+        yield words, command
+        for name, sub in sorted(getattr(command, "commands", {}).items()):
+            yield from walk(sub, [*words, name])
+
+    return list(walk(get_command(app), []))
+
+
+COMMANDS = every_command()
+
+
+@pytest.mark.parametrize(
+    "words, command", COMMANDS, ids=[" ".join(["imagine", *w]) for w, _ in COMMANDS]
+)
+def test_help_reads_well(words, command):
+    """Each command's summary is one sentence on one line (the command list shows it whole),
+    and no option shows a bare type such as <str> where a metavar says what it takes."""
+    import inspect
+
+    from typer.testing import CliRunner
+
+    from imagine.cli import app
+
+    summary = inspect.cleandoc(command.help or "").split("\n\n")[0]
+    assert summary and "\n" not in summary and len(summary) <= 90, summary
+    done = CliRunner().invoke(app, [*words, "--help"], env={"COLUMNS": "100"})
+    assert done.exit_code == 0 and "Usage" in done.output
+    assert summary.split()[-1] in done.output  # the summary whole, not cut
+    for bare in ("<str>", "<list[", "<dict"):
+        assert bare not in done.output, (words, done.output)
 
 
 def test_env_show_writes_a_contact_sheet(tmp_path):

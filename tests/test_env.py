@@ -197,3 +197,19 @@ def test_any_action_sequence_keeps_the_environment_consistent(seed, actions, tas
         if terminated or truncated:
             obs, info = env.reset()
             state, length = tuple(info["macrostate"]), 0
+
+
+def test_importing_the_package_registers_the_environment():
+    """`import imagine` is enough for gymnasium.make; the env's modules load on make."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, gymnasium, imagine\n"
+        "assert 'imagine.env' not in sys.modules\n"
+        "env = gymnasium.make('imagine/GesturePuzzle-v0', task='hard')\n"
+        "print(env.reset(seed=0)[0].shape)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "(64, 64, 3)"

@@ -2,6 +2,7 @@
 study killed mid-way that resumes without redoing finished runs; Ray gives local's numbers."""
 
 import csv
+import dataclasses
 import json
 import os
 import signal
@@ -12,14 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
+from imagine.config import parse_seeds
 from imagine.errors import ConfigError
 from imagine.experiments import Job, LocalRunner, RayRunner, run_job, study_jobs
 from imagine.report import claims, iqm_interval, markdown_table, summarize
-from imagine.reproduce import StudyConfig
+from imagine.reproduce import StudyConfig, same_study
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
-SMOKE = ["--preset", "smoke", "--seeds", "2", "--set", "imagination_start=10",
+SMOKE = ["--preset", "smoke", "--seeds", "0,1", "--set", "imagination_start=10",
          "--set", "accuracy_every=20"]  # fmt: skip
 
 
@@ -175,7 +178,9 @@ def test_statistics_and_tables():
     "values, message",
     [
         ({"tasks": ("easy",)}, "unknown task"),
-        ({"seeds": 0}, "seeds must be at least 1"),
+        ({"seeds": 0}, "seeds must be one or more non-negative integers"),
+        ({"seeds": (1, -2)}, "seeds must be one or more non-negative integers"),
+        ({"overrides": {"episodes": 9}}, "the study sets episodes"),
         ({"budgets": ()}, "budgets must be positive"),
         ({"backend": "slurm"}, "unknown backend"),
         ({"preset": "huge"}, "preset"),
@@ -185,6 +190,19 @@ def test_statistics_and_tables():
 def test_bad_study_settings(values, message):
     with pytest.raises(ConfigError, match=message):
         StudyConfig(**values)
+
+
+def test_a_study_lists_its_seeds_and_reads_an_older_count():
+    assert StudyConfig(seeds=(4, 1, 4)).seeds == (1, 4)
+    assert StudyConfig(seeds=3).seeds == (0, 1, 2)  # study.yaml before seeds were listed
+    assert parse_seeds("0-2,7, 1") == (0, 1, 2, 7) and parse_seeds("5") == (5,)
+    older = yaml.safe_load(yaml.safe_dump(dataclasses.asdict(StudyConfig())))
+    older["seeds"], older["workers"] = 5, 1
+    assert same_study(older, StudyConfig(workers=2))  # make run's study.yaml before the change
+    assert not same_study(older, StudyConfig(seeds=(0, 1, 2, 3)))
+    jobs = study_jobs("out", ["hard"], (3, 7), [1000])
+    assert [job.name for job in jobs] == [f"hard-{m}-{s}" for m in ("baseline", "augmented")
+                                          for s in (3, 7)]  # fmt: skip
 
 
 def test_one_run_per_seed_or_one_per_budget(tmp_path):

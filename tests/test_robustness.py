@@ -162,7 +162,12 @@ def bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
         (["reproduce", "s", "--budgets", "2000,x"], "comma-separated integers"),
         (["reproduce", "s", "--backend", "slurm"], "unknown backend"),
         (["reproduce", "s", "--tasks", "original,easy"], "unknown task"),
-        (["reproduce", "s", "--seeds", "0"], "seeds must be at least 1"),
+        (["reproduce", "s", "--seeds", "2-1"], "--seeds expects comma-separated integers"),
+        (["reproduce", "s", "--seeds", "-1"], "--seeds expects comma-separated integers"),
+        (["reproduce", "s", "--set", "task=hard"], "the study sets task for each run"),
+        (["reproduce", "s", "--set", "seed=3"], "use --seeds"),
+        (["train", "r", "--oracle", "--task", "hard", "--set", "task=original"], "given twice"),
+        (["train", "r", "--no-oracle", "--set", "encoder=oracle"], "given twice"),
     ]
 
 

@@ -50,7 +50,7 @@ def test_a_second_study_on_a_running_folder_is_refused_and_a_dead_holders_lock_t
     try:
         assert holder.stdout.readline() == "held\n"
         second = subprocess.run([IMAGINE, "reproduce", str(out), "--preset", "smoke", "--seeds",
-                                 "1", "--tasks", "original", "--budgets", "10", "--oracle",
+                                 "0", "--tasks", "original", "--budgets", "10", "--oracle",
                                  "--set", "imagination_start=5"],
                                 capture_output=True, text=True, check=False)  # fmt: skip
         assert second.returncode == 2

@@ -1,1 +1,23 @@
-"""imagine."""
+"""imagine: sample-efficient deep RL with imaginary rollouts (Thabet et al. 2019).
+
+Importing the package registers the paper's environment with Gymnasium, so that::
+
+    import gymnasium, imagine
+    env = gymnasium.make("imagine/GesturePuzzle-v0", task="hard")
+
+works without importing :mod:`imagine.env` first (registration only names the entry points;
+the environment's modules load on the first ``make``).
+"""
+
+import gymnasium as _gym
+
+ENV_ID = "imagine/GesturePuzzle-v0"
+"""GesturePuzzle's Gymnasium id; the task is a keyword (``task="original"`` or ``"hard"``)."""
+
+if ENV_ID not in _gym.registry:
+    _gym.register(
+        id=ENV_ID,
+        entry_point="imagine.env.gesture_puzzle:GesturePuzzleEnv",
+        vector_entry_point="imagine.env.vector:GesturePuzzleVectorEnv",
+        max_episode_steps=None,
+    )

@@ -8,7 +8,7 @@ import sys
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -22,11 +22,16 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    rich_markup_mode="markdown",  # a docstring's lines join into sentences; `code` shows as code
 )
-env_app = typer.Typer(help="The GesturePuzzle environment.", no_args_is_help=True)
+env_app = typer.Typer(
+    help="The GesturePuzzle environment.", no_args_is_help=True, rich_markup_mode="markdown"
+)
 app.add_typer(env_app, name="env")
 vae_app = typer.Typer(
-    help="V: the beta-VAE that encodes scenes into latent states.", no_args_is_help=True
+    help="V: the beta-VAE that encodes scenes into latent states.",
+    no_args_is_help=True,
+    rich_markup_mode="markdown",
 )
 app.add_typer(vae_app, name="vae")
 console = Console(stderr=True)
@@ -47,12 +52,18 @@ CubeFragmentsOption = Annotated[
 ]
 SetOption = Annotated[
     list[str] | None,
-    typer.Option("--set", help="KEY=VALUE: an agent config field over the preset (YAML value)."),
+    typer.Option(
+        "--set",
+        metavar="KEY=VALUE",
+        help="An agent config field over the preset (VALUE read as YAML); repeatable.",
+    ),
 ]
 HandFragmentsOption = Annotated[int, typer.Option(help="Procedural fragments per pointed cube.")]
 VisionSetOption = Annotated[
     list[str] | None,
-    typer.Option("--set", help="KEY=VALUE: a V config field over the preset (YAML value)."),
+    typer.Option(
+        "--set", metavar="KEY=VALUE", help="A V config field over the preset (VALUE read as YAML)."
+    ),
 ]
 
 
@@ -68,8 +79,10 @@ def env_show(
     n_cube_fragments: CubeFragmentsOption = 16,
     n_hand_fragments: HandFragmentsOption = 50,
 ) -> None:
-    """Write a PNG contact sheet: example scenes of goal, illegal and start states with their
-    labels and observations, and the fragment variation of one microstate."""
+    """Write a PNG contact sheet of the task's scenes.
+
+    Example scenes of goal, illegal and start states with their labels and observations, and
+    the fragment variation of one microstate."""
     from imagine.env import make_composer
     from imagine.env.contact_sheet import contact_sheet
 
@@ -85,8 +98,10 @@ def env_export_fragments(
     n_cube_fragments: CubeFragmentsOption = 16,
     n_hand_fragments: HandFragmentsOption = 50,
 ) -> None:
-    """Write the procedural fragment pool as a folder in the layout `--fragments` reads: a
-    template for fragments cut from your own camera."""
+    """Write the procedural fragments as a folder, a template for your own.
+
+    The folder has the layout `--fragments` reads: replace its images by fragments cut from
+    your own camera."""
     from imagine.env import procedural_pool, save_fragment_folder
 
     pool = procedural_pool(fragment_seed, n_cube_fragments, n_hand_fragments)
@@ -134,7 +149,13 @@ def dataset(
     console.print(f"wrote {path}: {n_train} train + {n_test} test images, {rate:,.0f} images/s")
 
 
-PresetOption = Annotated[str, typer.Option(help="Settings: paper, fast (default) or smoke.")]
+PresetOption = Annotated[
+    str, typer.Option(metavar="paper|fast|smoke", help="Settings: paper, fast or smoke.")
+]
+DeviceOption = Annotated[
+    str,
+    typer.Option(metavar="auto|cpu|cuda", help="Where to train: auto (CUDA when there is one)."),
+]
 
 
 @vae_app.command("train")
@@ -150,10 +171,11 @@ def vae_train(
     dataset: Annotated[
         Path | None, typer.Option(help="Train on a file from `imagine dataset` instead.")
     ] = None,
-    device: Annotated[str, typer.Option(help="auto (CUDA if present), cpu or cuda.")] = "auto",
+    device: DeviceOption = "auto",
     set_: VisionSetOption = None,
 ) -> None:
-    """Train V on synthesized images (or a dataset file), then fit the latent classifier.
+    """Train V on synthesized images (or a dataset file), then its latent classifier.
+
     Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume."""
     from imagine.config import parse_assignments, vision_preset
     from imagine.vision_training import resolve_device, resume_point, train_vae, with_dataset
@@ -189,12 +211,13 @@ def vae_report(
         Path | None, typer.Option(help="An agent run trained with this V: add M's accuracy.")
     ] = None,
 ) -> None:
-    """Write reconstructions.png and traversals.png into RUN and print V's quality numbers:
-    test reconstruction loss and KL per image, each latent dimension's KL and whether it has
-    collapsed, how far apart the macrostates lie against the spread of one macrostate's images,
-    the MLP and linear probes' accuracy on fresh images, how often a draw of a perfect M
-    (diagonal Gaussians fitted to each macrostate's latents) is read back right, and (--agent)
-    the accuracy of an agent's M in this V's latent space."""
+    """Print V's quality numbers; write reconstructions.png and traversals.png into RUN.
+
+    The numbers: test reconstruction loss and KL per image, each latent dimension's KL and
+    whether it has collapsed, how far apart the macrostates lie against the spread of one
+    macrostate's images, the MLP and linear probes' accuracy on fresh images, how often a draw
+    of a perfect M (diagonal Gaussians fitted to each macrostate's latents) is read back right,
+    and (--agent) the accuracy of an agent's M in this V's latent space."""
     from rich.table import Table
 
     from imagine.vision_report import report_run
@@ -248,62 +271,88 @@ class MethodName(StrEnum):
     augmented = "augmented"
 
 
+def with_options(overrides: dict[str, Any], given: dict[str, tuple[str, Any]]) -> dict[str, Any]:
+    """``overrides`` (from --config and --set) with the fields that options gave (``given``:
+    field -> (option, value or None when not given)); a field given both ways must agree."""
+    merged = dict(overrides)
+    for key, (option, value) in given.items():
+        if value is None:
+            continue
+        if key in merged and merged[key] != value:
+            raise ImagineError(
+                f"{key} is given twice, differently: {option} {value} and {key}={merged[key]!r} "
+                "(--set or --config)"
+            )
+        merged[key] = value
+    return merged
+
+
 @app.command("train")
 def train_agent(
     out: Annotated[
         Path, typer.Argument(help="Run folder (resumed if it holds an unfinished run).")
     ],
-    task: Annotated[TaskName, typer.Option(help="original or hard.")] = TaskName.original,
+    task: Annotated[TaskName | None, typer.Option(help="The task (default: original).")] = None,
     method: Annotated[
-        MethodName, typer.Option(help="baseline or augmented.")
-    ] = MethodName.augmented,
+        MethodName | None, typer.Option(help="Algorithm 1 with or without M (default: augmented).")
+    ] = None,
     episodes: Annotated[int | None, typer.Option(help="Training episodes.")] = None,
-    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
+    seed: Annotated[int | None, typer.Option(help="Seed of everything random (default 0).")] = None,
     seeds: Annotated[
         str | None,
         typer.Option(
-            help="Comma-separated seeds trained together as one population, each "
-            "into OUT/seed-N (each with exactly its numbers alone)."
+            metavar="SEEDS",
+            help="Seeds trained together as one population, e.g. 0,1,2 or 0-4, each into "
+            "OUT/seed-N (each with exactly its numbers alone).",
         ),
     ] = None,
     preset: PresetOption = "fast",
     vae: Annotated[Path | None, typer.Option(help="V run folder (imagine vae train).")] = None,
     oracle: Annotated[
-        bool, typer.Option(help="Feed C and M the true macrostate's embedding.")
-    ] = False,
+        bool | None,
+        typer.Option("--oracle/--no-oracle", help="Feed C and M the true macrostate's embedding."),
+    ] = None,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
-    device: Annotated[str, typer.Option(help="auto (CUDA if present), cpu or cuda.")] = "cpu",
+    device: DeviceOption = "auto",
     config_file: Annotated[
         Path | None,
         typer.Option("--config", help="YAML mapping of agent config fields over the preset."),
     ] = None,
     set_: SetOption = None,
 ) -> None:
-    """Train one agent with Algorithm 1 (paper section V-B) into OUT: config, metrics (CSV and
-    TensorBoard) and checkpoints; with --seeds, several in lockstep. Run it again to resume."""
+    """Train one agent with Algorithm 1 (paper section V-B), or several in lockstep.
+
+    Writes its config, metrics (CSV and TensorBoard) and checkpoints into OUT; run it again to
+    resume. A field set both by an option and by --set or --config must agree."""
     import dataclasses
 
     from imagine.agent import check_folder, make_encoder
-    from imagine.config import agent_preset, check_imagines, load_yaml, parse_assignments
+    from imagine.config import (
+        agent_preset,
+        check_imagines,
+        load_yaml,
+        parse_assignments,
+        parse_seeds,
+    )
     from imagine.devices import resolve_device
     from imagine.errors import NumericalError
     from imagine.training import train_population
 
     overrides: dict = load_yaml(config_file) if config_file is not None else {}
     overrides |= parse_assignments(set_ or [])
-    overrides |= {"task": task.value, "method": method.value, "seed": seed,
-                       "encoder": "oracle" if oracle else "vae",
-                       "vae_run": None if vae is None else str(vae)}  # fmt: skip
-    if episodes is not None:
-        overrides["episodes"] = episodes
-    config = check_imagines(agent_preset(preset, **overrides))
+    given = {
+        "task": ("--task", None if task is None else task.value),
+        "method": ("--method", None if method is None else method.value),
+        "seed": ("--seed", seed),
+        "episodes": ("--episodes", episodes),
+        "encoder": ("--oracle", None if oracle is None else "oracle" if oracle else "vae"),
+        "vae_run": ("--vae", None if vae is None else str(vae)),
+    }
+    config = check_imagines(agent_preset(preset, **with_options(overrides, given)))
     if seeds is None:
         configs, folders = [config], [out]
     else:
-        try:
-            chosen = sorted({int(x) for x in seeds.split(",")})
-        except ValueError:
-            raise ImagineError(f"--seeds expects comma-separated integers, got {seeds!r}") from None
+        chosen = parse_seeds(seeds)
         configs = [dataclasses.replace(config, seed=s) for s in chosen]
         folders = [out / f"seed-{s}" for s in chosen]
     for c, folder in zip(configs, folders, strict=True):
@@ -341,7 +390,9 @@ def evaluate_agent(
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the test episodes.")] = 1_000_000,
 ) -> None:
-    """Run greedy test episodes (batched) and print the success rate with its 95% interval, M's
+    """Test an agent: greedy success, M's accuracy, the imagined transitions' quality.
+
+    Runs greedy test episodes (batched) and prints the success rate with its 95% interval, M's
     accuracy over all 192 x 6 true transitions, and how right the transitions are that M
     imagines for C (judged by V's latent classifier); how well the members' disagreement (an
     ensemble M) and the support distance detect the wrong ones (AUROC), and how right the
@@ -410,9 +461,11 @@ def plan_command(
     trials: Annotated[int, typer.Option(min=1, help="Plans from random start states.")] = 20,
     seed: Annotated[int, typer.Option(help="Seed of the start states and images.")] = 0,
 ) -> None:
-    """Generate plans from one observation with M and C (paper section V, Generating Plans),
-    execute them open-loop and compare their length with the optimal; writes RUN/plans.json
-    and RUN/plan_rollout.png (V's decoding of an imagined plan of length 5, paper Fig. 5)."""
+    """Plan with M and C from one observation (paper section V, Generating Plans).
+
+    Generates plans, executes them open-loop and compares their length with the optimal;
+    writes RUN/plans.json and RUN/plan_rollout.png (V's decoding of an imagined plan of
+    length 5, paper Fig. 5)."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
     from imagine.planning import plan_trials, rollout_png, summarize_plans
@@ -434,9 +487,10 @@ def generalize_command(
     ] = 20,
     seed: Annotated[int, typer.Option(help="Seed of the trials and images.")] = 0,
 ) -> None:
-    """M's next state from terminal states it never trained on (paper section V, Model
-    Generalization): the 20-trial test and all terminal states x actions; writes
-    RUN/generalization.json and RUN/generalization.png (paper Fig. 7)."""
+    """M's next state from terminal states it never trained on (paper Fig. 7).
+
+    Paper section V, Model Generalization: the 20-trial test and all terminal states x
+    actions; writes RUN/generalization.json and RUN/generalization.png (paper Fig. 7)."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
     from imagine.generalization import generalization, generalization_png
@@ -456,15 +510,23 @@ def generalize_command(
 def reproduce_study(
     out: Annotated[Path, typer.Argument(help="Study folder (resumed if it holds one).")],
     preset: PresetOption = "fast",
-    tasks: Annotated[str, typer.Option(help="Comma-separated tasks.")] = "original,hard",
-    seeds: Annotated[int, typer.Option(help="Agents per (task, method).")] = 5,
+    tasks: Annotated[
+        str, typer.Option(metavar="TASKS", help="Comma-separated tasks.")
+    ] = "original,hard",
+    seeds: Annotated[
+        str,
+        typer.Option(metavar="SEEDS", help="The seeds of every (task, method), e.g. 0,1,2 or 0-4."),
+    ] = "0-4",
     budgets: Annotated[
-        str, typer.Option(help="Comma-separated training-episode budgets.")
+        str, typer.Option(metavar="BUDGETS", help="Comma-separated training-episode budgets.")
     ] = "250,500,1000,1500,2000,3000,4000,5000,6000",
-    backend: Annotated[str, typer.Option(help="local (processes) or ray.")] = "local",
+    backend: Annotated[
+        str, typer.Option(metavar="local|ray", help="Processes on this machine, or Ray.")
+    ] = "local",
     workers: Annotated[int, typer.Option(help="Runs at once (one torch thread each).")] = 2,
     address: Annotated[
-        str | None, typer.Option(help="Address of an existing Ray cluster (ray backend).")
+        str | None,
+        typer.Option(metavar="HOST:PORT", help="Address of an existing Ray cluster (ray backend)."),
     ] = None,
     vae: Annotated[
         Path | None, typer.Option(help="Reuse this V run instead of training V into OUT/vae.")
@@ -473,14 +535,14 @@ def reproduce_study(
     separate_runs: Annotated[
         bool, typer.Option(help="One run per budget from scratch (default: one run per seed).")
     ] = False,
-    device: Annotated[
-        str, typer.Option(help="Where the populations train: auto (CUDA if present), cpu, cuda.")
-    ] = "cpu",
+    device: DeviceOption = "auto",
     set_: SetOption = None,
 ) -> None:
-    """The paper's section V in one command: V, every (task, method, seed) agent evaluated at
-    every budget, Tables I and II, figures and REPORT.md in OUT. Run again to resume."""
-    from imagine.config import parse_assignments
+    """The paper's section V in one command; run it again to resume.
+
+    V, every (task, method, seed) agent evaluated at every budget, Tables I and II, figures and
+    REPORT.md, all in OUT."""
+    from imagine.config import parse_assignments, parse_seeds
     from imagine.experiments import folder_lock
     from imagine.reproduce import StudyConfig, reproduce
 
@@ -491,13 +553,15 @@ def reproduce_study(
             raise ImagineError(f"--{name} expects comma-separated integers, got {text!r}") from None
 
     config = StudyConfig(
-        preset=preset, tasks=tuple(t.strip() for t in tasks.split(",")), seeds=seeds,
+        preset=preset, tasks=tuple(t.strip() for t in tasks.split(",")),
+        seeds=parse_seeds(seeds),
         budgets=numbers(budgets, "budgets"), backend=backend, workers=workers, address=address,
         vae_run=None if vae is None else str(vae), oracle=oracle, separate_runs=separate_runs,
         overrides=parse_assignments(set_ or []), device=device,
     )  # fmt: skip
     start = time.perf_counter()
-    total = len(config.tasks) * 2 * config.seeds * (len(config.budgets) if separate_runs else 1)
+    runs_per_budget = len(config.tasks) * 2 * len(config.seeds)
+    total = runs_per_budget * (len(config.budgets) if separate_runs else 1)
     running: list[str] = []
     with folder_lock(out, notice=console.print), Progress(  # refused before any bar shows
         TextColumn("runs"), BarColumn(), MofNCompleteColumn(),

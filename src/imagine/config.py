@@ -167,6 +167,27 @@ def to_dict(config: Any) -> dict[str, Any]:
     return dataclasses.asdict(config)
 
 
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Seeds as ``imagine train --seeds`` and ``imagine reproduce --seeds`` take them: a
+    comma-separated list of non-negative integers and ranges ``A-B`` (both ends included),
+    e.g. ``0,1,2``, ``0-4`` or ``0-2,7``; sorted, each once."""
+    seeds: set[int] = set()
+    try:
+        for part in text.split(","):
+            first, sep, last = part.strip().partition("-")
+            lo = int(first)
+            hi = int(last) if sep else lo
+            if lo < 0 or hi < lo:
+                raise ValueError
+            seeds.update(range(lo, hi + 1))
+    except ValueError:
+        raise ConfigError(
+            f"--seeds expects comma-separated integers or ranges A-B (e.g. 0,1,2 or 0-4), "
+            f"got {text!r}"
+        ) from None
+    return tuple(sorted(seeds))
+
+
 def parse_assignments(items: list[str]) -> dict[str, Any]:
     """``KEY=VALUE`` strings as a mapping, each value read as YAML (``0.5``, ``true``, ``null``)."""
     values: dict[str, Any] = {}

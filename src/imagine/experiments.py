@@ -92,7 +92,7 @@ class Job:
 def study_jobs(
     out: str | Path,
     tasks: Iterable[str],
-    seeds: int,
+    seeds: int | Iterable[int],
     budgets: Iterable[int],
     methods: Iterable[str] = ("baseline", "augmented"),
     separate_runs: bool = False,
@@ -100,8 +100,10 @@ def study_jobs(
 ) -> list[Job]:
     """Every (task, method, seed) job of a study, each in ``out/runs/<task>-<method>-<seed>``
     and evaluated at every budget; with ``separate_runs``, one job per budget as well, each
-    trained from scratch (``.../<task>-<method>-<seed>-e<budget>``), as the paper describes."""
+    trained from scratch (``.../<task>-<method>-<seed>-e<budget>``), as the paper describes.
+    ``seeds``: the seeds, or their number n (seeds 0..n-1)."""
     budgets = tuple(sorted(set(budgets)))
+    seeds = range(seeds) if isinstance(seeds, int) else tuple(seeds)
     groups = [(f"-e{b}", (b,)) for b in budgets] if separate_runs else [("", budgets)]
     return [
         Job(
@@ -114,7 +116,7 @@ def study_jobs(
         )
         for task in tasks
         for method in methods
-        for seed in range(seeds)
+        for seed in seeds
         for suffix, group in groups
     ]
 

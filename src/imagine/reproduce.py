@@ -53,13 +53,25 @@ from imagine.report import (
 RANDOM_EPISODES = 10_000
 
 
+STUDY_FIELDS = {
+    "task": "use --tasks",
+    "method": "a study trains both methods",
+    "seed": "use --seeds",
+    "episodes": "use --budgets",
+    "encoder": "use --oracle",
+    "vae_run": "use --vae",
+}
+"""Agent config fields a study sets per run, so --set may not: what to use instead."""
+
+
 @dataclass(frozen=True)
 class StudyConfig:
     """What `imagine reproduce` runs."""
 
     preset: str = "fast"
     tasks: tuple[str, ...] = ("original", "hard")
-    seeds: int = 5
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    """The seeds of every (task, method); an integer n means seeds 0..n-1 (older study.yaml)."""
     budgets: tuple[int, ...] = (250, 500, 1000, 1500, 2000, 3000, 4000, 5000, 6000)
     """Where every run is evaluated: the paper's 2000..6000 and the fine learning curve before
     them, where the paper's baseline is weak."""
@@ -76,8 +88,9 @@ class StudyConfig:
     on the budget)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Agent config fields over the preset (--set)."""
-    device: str = "cpu"
-    """Where the populations train: auto, cpu or cuda (V trains on auto)."""
+    device: str = "auto"
+    """Where V and the populations train: auto (CUDA when there is one), cpu or cuda; stored
+    resolved (cpu or cuda), so a study resumes on the kind of device it began on."""
 
     def __post_init__(self) -> None:
         from imagine.env.rules import TASKS
@@ -86,21 +99,43 @@ class StudyConfig:
         for task in self.tasks:
             if task not in TASKS:
                 raise ConfigError(f"unknown task {task!r}; choose from {', '.join(TASKS)}")
-        if self.seeds < 1:
-            raise ConfigError(f"seeds must be at least 1, got {self.seeds}")
+        if isinstance(self.seeds, int):
+            object.__setattr__(self, "seeds", tuple(range(self.seeds)))
+        object.__setattr__(self, "seeds", tuple(sorted(set(self.seeds))))
+        if not self.seeds or min(self.seeds) < 0:
+            raise ConfigError(f"seeds must be one or more non-negative integers, got {self.seeds}")
+        for key in STUDY_FIELDS:
+            if key in self.overrides:
+                raise ConfigError(
+                    f"--set {key}=...: the study sets {key} for each run ({STUDY_FIELDS[key]})"
+                )
         if not self.budgets or min(self.budgets) < 1:
             raise ConfigError(f"budgets must be positive episode counts, got {self.budgets}")
         if self.backend not in ("local", "ray"):
             raise ConfigError(f"unknown backend {self.backend!r}; choose local or ray")
         from imagine.devices import resolve_device
 
-        resolve_device(self.device)
+        object.__setattr__(self, "device", resolve_device(self.device).type)
         if self.workers < 1:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
         # every budget's agent config must be valid before anything runs
         for budget in self.budgets:
             agent = agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
         check_imagines(agent)  # the runs are evaluated early, but must imagine by the last budget
+
+
+def same_study(saved: dict[str, Any], config: StudyConfig) -> bool:
+    """Whether a study folder's ``study.yaml`` (``saved``) is ``config``'s study: the same
+    settings but for how it runs (backend, workers, address). An older file's seed count n
+    reads as seeds 0..n-1."""
+    keep = ("backend", "workers", "address")
+    saved = dict(saved)
+    if isinstance(saved.get("seeds"), int):
+        saved["seeds"] = list(range(saved["seeds"]))
+    mine = yaml.safe_load(yaml.safe_dump(dataclasses.asdict(config)))
+    return {k: v for k, v in saved.items() if k not in keep} == {
+        k: v for k, v in mine.items() if k not in keep
+    }
 
 
 def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -> str | None:
@@ -115,7 +150,7 @@ def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -
     folder = out / "vae"
     vision = vision_preset(config.preset)
     log(f"training V ({config.preset} preset) into {folder}")
-    train_vae(vision, folder, device="cpu")
+    train_vae(vision, folder, device=config.device)
     if not (folder / "reconstructions.png").is_file():
         from imagine.vision_report import report_run
 
@@ -180,7 +215,7 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
     text = [
         "# Reproduction of Thabet, Patacchiola and Cangelosi (2019), section V",
         "",
-        f"Preset `{config.preset}`; tasks {', '.join(config.tasks)}; {config.seeds} seeds; "
+        f"Preset `{config.preset}`; tasks {', '.join(config.tasks)}; {len(config.seeds)} seeds; "
         f"budgets {', '.join(map(str, config.budgets))} training episodes; each agent tested "
         f"with {agent.eval_episodes} greedy episodes. Encoder: "
         f"{'oracle (true macrostate)' if config.oracle else f'V from `{vae_run}`'}. "
@@ -247,15 +282,10 @@ def _run_study(
 ) -> tuple[Path, list[str]]:
     """:func:`reproduce` once ``out`` is locked."""
     saved = out / "study.yaml"
-    mine = dataclasses.asdict(config)
-    if saved.is_file():
-        before = yaml.safe_load(saved.read_text())
-        keep = ("backend", "workers", "address")
-        if {k: v for k, v in before.items() if k not in keep} != {
-            k: v for k, v in yaml.safe_load(yaml.safe_dump(mine)).items() if k not in keep
-        }:
-            raise ConfigError(f"{out} holds a study with other settings; use a new folder")
-    atomic_write_text(saved, yaml.safe_dump(mine))
+    mine = yaml.safe_dump(dataclasses.asdict(config))
+    if saved.is_file() and not same_study(yaml.safe_load(saved.read_text()), config):
+        raise ConfigError(f"{out} holds a study with other settings; use a new folder")
+    atomic_write_text(saved, mine)
     vae_run = prepare_vision(config, out, log)
     jobs = study_jobs(
         out, config.tasks, config.seeds, config.budgets, separate_runs=config.separate_runs,

@@ -7,8 +7,7 @@ Registered with Gymnasium as ``imagine/GesturePuzzle-v0``; the task is a keyword
                               vectorization_mode="vector_entry_point")
 """
 
-import gymnasium as gym
-
+from imagine import ENV_ID  # registered with Gymnasium by importing the package
 from imagine.env.fragments import (
     FragmentPool,
     load_fragment_folder,
@@ -19,16 +18,6 @@ from imagine.env.gesture_puzzle import GesturePuzzleEnv, make_composer
 from imagine.env.rules import optimal_plan_length, transition
 from imagine.env.scene import SceneComposer
 from imagine.env.vector import GesturePuzzleVectorEnv
-
-ENV_ID = "imagine/GesturePuzzle-v0"
-
-if ENV_ID not in gym.registry:
-    gym.register(
-        id=ENV_ID,
-        entry_point="imagine.env.gesture_puzzle:GesturePuzzleEnv",
-        vector_entry_point="imagine.env.vector:GesturePuzzleVectorEnv",
-        max_episode_steps=None,
-    )
 
 __all__ = [
     "ENV_ID",
