@@ -5,13 +5,17 @@ For `fast` and `paper` (augmented, imagination from the first episode, oracle en
 does not count; V's cost is in vae_speed.py): each population is built, M_R gets a batch of
 random transitions per agent, and ``--steps`` lockstep steps are timed after one warm-up step.
 FLOPs are counted by ``torch.utils.flop_counter`` (matrix products, forward and backward) over
-one step and one M update. The peak is a large float32 matrix product timed in the same run,
-with the same number of threads. The last lines: peak memory of this process (it ends with the
-20-agent `paper` population, the paper's whole study in one process) and 1000 greedy test
-episodes through V (untrained weights; the cost does not depend on them).
+one step and one M update. The peak is a large matrix product timed in the same run, with the
+same number of threads, in the dtype of the row's products. Every row is measured with float32
+products and with bfloat16 ones (``matmul_dtype``: mixed precision, float32 weights and
+losses; issue 18), one after the other in the same run (``--dtypes`` picks). The last lines:
+peak memory of this process (it ends with the 20-agent `paper` population, the paper's whole
+study in one process) and 1000 greedy test episodes through V (untrained weights; the cost
+does not depend on them).
 
     .venv/bin/python benchmarks/population_speed.py [--threads 1] [--steps 20]
-        [--presets fast,paper] [--set model_ensemble=5 ...] [--device cuda]
+        [--presets fast,paper] [--dtypes float32,bfloat16] [--set model_ensemble=5 ...]
+        [--device cuda]
 
 ``--set KEY=VALUE`` changes a setting of every agent (as `imagine train --set` does), e.g. the
 ensemble size K of M's MDN. ``--device cuda`` times the populations on a GPU (the peak is then the
@@ -41,11 +45,17 @@ def synchronize(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def peak_flops(n: int = 2048, repeats: int = 5, device: torch.device | None = None) -> float:
+def peak_flops(
+    n: int = 2048,
+    repeats: int = 5,
+    device: torch.device | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> float:
     device = device or torch.device("cpu")
     if device.type == "cuda":
         n, repeats = 8192, 20
-    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    a = torch.randn(n, n, device=device, dtype=dtype)
+    b = torch.randn(n, n, device=device, dtype=dtype)
     a @ b
     synchronize(device)
     start = time.perf_counter()
@@ -152,37 +162,43 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a setting of every agent, e.g. model_ensemble=5")  # fmt: skip
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    parser.add_argument("--dtypes", default="float32,bfloat16",
+                        help="the products' dtypes to measure every row with")  # fmt: skip
     args = parser.parse_args()
+    dtypes = args.dtypes.split(",")
     overrides = parse_assignments(args.set)
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
+    peaks = {name: peak_flops(device=device, dtype=getattr(torch, name)) for name in dtypes}
     if device.type == "cuda":
         torch.backends.cuda.matmul.allow_tf32 = True
         tf32 = peak_flops(device=device)
         torch.backends.cuda.matmul.allow_tf32 = False
-        peak = peak_flops(device=device)
         name = torch.cuda.get_device_name(device)
-        print(f"peak: {name}, 8192x8192 matmul: float32 {peak / 1e12:.1f} TFLOP/s, "
-              f"TF32 {tf32 / 1e12:.1f} TFLOP/s (the % of peak below: float32)")  # fmt: skip
+        rates = ", ".join(f"{k} {v / 1e12:.1f} TFLOP/s" for k, v in peaks.items())
+        print(f"peak: {name}, 8192x8192 matmul: {rates}, TF32 {tf32 / 1e12:.1f} TFLOP/s "
+              "(the % of peak below: of the row's dtype)")  # fmt: skip
     else:
-        peak = peak_flops()
-        print(f"peak: float32 2048x2048 matmul, {args.threads} thread(s): {peak / 1e9:.1f} GFLOP/s")
+        rates = ", ".join(f"{k} {v / 1e9:.1f} GFLOP/s" for k, v in peaks.items())
+        print(f"peak: 2048x2048 matmul, {args.threads} thread(s): {rates}")
     if overrides:
         print("settings: " + ", ".join(f"{k}={v}" for k, v in overrides.items()))
     print(
-        "| preset | agents | agent steps/s | ms per lockstep step | M update ms | "
+        "| preset | agents | products | agent steps/s | ms per lockstep step | M update ms | "
         "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for preset in args.presets.split(","):
         for agents in (int(a) for a in args.agents.split(",")):
             steps = args.steps if preset == "fast" else 2
-            m = measure(preset, agents, steps, peak, overrides, args.device)
-            cells = [preset, str(agents), f"{m['steps_per_s']:.1f}", f"{m['step_ms']:.1f}",
-                     f"{m['m_update_ms']:.1f}", f"{100 * m['m_share']:.0f}%",
-                     f"{100 * m['m_peak']:.0f}%", f"{100 * m['step_peak']:.0f}%",
-                     f"{m['gflop_per_step']:.2f}"]  # fmt: skip
-            print("| " + " | ".join(cells) + " |", flush=True)
+            for dtype in dtypes:
+                settings = {**overrides, "matmul_dtype": dtype}
+                m = measure(preset, agents, steps, peaks[dtype], settings, args.device)
+                cells = [preset, str(agents), dtype, f"{m['steps_per_s']:.1f}",
+                         f"{m['step_ms']:.1f}", f"{m['m_update_ms']:.1f}",
+                         f"{100 * m['m_share']:.0f}%", f"{100 * m['m_peak']:.0f}%",
+                         f"{100 * m['step_peak']:.0f}%", f"{m['gflop_per_step']:.2f}"]  # fmt: skip
+                print("| " + " | ".join(cells) + " |", flush=True)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(f"peak memory of this process: {rss:.2f} GiB")
     if device.type == "cuda":

@@ -34,9 +34,11 @@ def random_agent_success(task: str, episodes: int = 2000) -> float:
     return float(success.mean())
 
 
-def test_smoke_agent_with_the_oracle_learns_well_above_random(tmp_path):
+@pytest.mark.parametrize("matmul_dtype", ["float32", "bfloat16"])
+def test_smoke_agent_with_the_oracle_learns_well_above_random(tmp_path, matmul_dtype):
+    """Q-learning (and M) with bfloat16 products learns as with float32 (issue 18)."""
     torch.manual_seed(0)
-    config = agent_preset("smoke", encoder="oracle", method="augmented")
+    config = agent_preset("smoke", encoder="oracle", method="augmented", matmul_dtype=matmul_dtype)
     agent = train(config, tmp_path, threads=1)
     result = greedy_success(agent.controller, agent.encoder, "original", 1000, seed=123)
     random = random_agent_success("original")

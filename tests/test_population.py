@@ -11,8 +11,9 @@ from imagine.config import agent_preset
 from imagine.errors import ConfigError
 from imagine.metrics import read_metrics
 from imagine.population import Population
-from imagine.stacked import PopulationAdam, StackedMLP, export_agent
+from imagine.stacked import PopulationAdam, StackedMLP, export_agent, set_matmul_dtype
 from imagine.training import train_population
+from imagine.world_model import PopulationWorldModel, WorldModel
 
 
 def numbers(folder):
@@ -91,6 +92,46 @@ def test_stacked_mlp_computes_each_agents_own_network():
         assert torch.allclose(out[i], mlp(x[i]), atol=1e-6)
     copy = export_agent(stacked, 1, nn.Sequential(nn.Linear(4, 16), nn.ReLU(), nn.Linear(16, 3)))
     assert torch.allclose(copy(x[1]), out[1], atol=1e-6)
+
+
+def fit_known_transition(matmul_dtype: str, updates: int = 300) -> tuple[dict, float]:
+    """M of 2 agents after ``updates`` on a known transition (a shift of the latent plus a
+    step per action; reward +50 and the end past a threshold), without dropout."""
+    torch.manual_seed(0)
+    model = PopulationWorldModel([WorldModel(8, dropout=0.0, reward_hidden=64) for _ in range(2)])
+    set_matmul_dtype(model, matmul_dtype)
+    generators = [torch.Generator().manual_seed(i) for i in range(2)]
+    g = torch.Generator().manual_seed(5)
+    z, action = torch.randn(2, 256, 8, generator=g), torch.randint(6, (2, 256), generator=g)
+    next_z = z.roll(1, -1) + 0.5 * (action.unsqueeze(-1) - 2.5)
+    goal = next_z[..., 0] > 1
+    batch = {"mu": z, "sigma": torch.full_like(z, 0.01), "action": action, "next_mu": next_z,
+             "next_sigma": torch.full_like(z, 0.01), "reward": torch.where(goal, 50.0, -1.0),
+             "done": goal.float()}  # fmt: skip
+    for _ in range(updates):
+        losses = model.update(batch, generators, resample=False)
+    assert {p.dtype for p in model.parameters()} == {torch.float32}
+    assert {p.grad.dtype for p in model.parameters() if p.grad is not None} == {torch.float32}
+    error = (model.mode(z, action) - next_z).abs().mean().item()
+    return losses, error
+
+
+def test_bfloat16_products_learn_a_known_transition_with_float32_weights_and_losses():
+    """Mixed precision (``matmul_dtype: bfloat16``, issue 18): weights, gradients and losses
+    stay float32, and M's log-likelihood (equation 6), r and d reach what float32 reaches."""
+    full, full_error = fit_known_transition("float32")
+    mixed, mixed_error = fit_known_transition("bfloat16")
+    assert all(loss.dtype == torch.float32 for loss in mixed.values())
+    assert (mixed["mdn"] < -8).all() and (full["mdn"] < -8).all(), (full, mixed)  # from ~ +10
+    assert full_error < 0.15 and mixed_error < 1.5 * full_error, (full_error, mixed_error)
+    assert (mixed["reward"] < 1.0).all() and (mixed["terminal"] < 0.01).all(), mixed
+    torch.manual_seed(1)
+    layer = StackedMLP([nn.Sequential(nn.Linear(8, 64)) for _ in range(2)]).layers[0]
+    set_matmul_dtype(layer, "bfloat16")
+    x = torch.randn(2, 5, 8)
+    exact = torch.baddbmm(layer.bias.unsqueeze(1), x, layer.weight)
+    assert layer(x).dtype == torch.float32 and not torch.equal(layer(x), exact)
+    assert torch.allclose(layer(x), exact, rtol=0.05, atol=0.05)
 
 
 def test_population_adam_is_torch_adam_per_agent_and_skips_agents():

@@ -321,6 +321,13 @@ class AgentConfig:
     """Adam learning rate of M's networks."""
     n_components: int = 5
     """Gaussians in the MDN."""
+    matmul_dtype: str = "float32"
+    """The dtype of C's and M's matrix products during training: float32 (the paper), or
+    bfloat16 (mixed precision: weights, gradients, Adam's state, losses and the MDN's
+    log-likelihood stay float32; only each layer's product rounds its operands to bfloat16, as
+    a CPU with AMX or avx512_bf16 and a GPU compute it fastest; README, issue 18). Evaluation,
+    planning and the checkpoints are float32 either way. An agent's numbers match its run in a
+    population bitwise with float32 only."""
     model_ensemble: int = 1
     """K: members of M's MDN per agent (PETS, MBPO), each with its own initialization and its
     own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
@@ -404,7 +411,7 @@ class AgentConfig:
                    "imagination_draw": ("sample", "mode", "component"),
                    "imagination_from": ("current", "memory"),
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
-                   "reward_loss": REWARD_LOSSES,
+                   "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
                    "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

@@ -54,7 +54,7 @@ from imagine.gate import (
 )
 from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
-from imagine.stacked import agent_normal, export_agent, import_agent
+from imagine.stacked import agent_normal, export_agent, import_agent, set_matmul_dtype
 from imagine.true_model import SplitModel, TrueLatentModel
 from imagine.world_model import PopulationWorldModel, WorldModel
 
@@ -114,6 +114,8 @@ class Population:
         self.model = PopulationWorldModel(
             [n[1].to(self.device) for n in networks], c.model_lr, c.reward_loss
         )
+        set_matmul_dtype(self.controller, c.matmul_dtype)
+        set_matmul_dtype(self.model, c.matmul_dtype)
         self.templates = copy.deepcopy(networks[0])  # single-agent modules for export
         self.real = ReplayMemory(c.real_memory, real_fields(d), P, self.device)
         self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)

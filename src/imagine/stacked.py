@@ -43,6 +43,11 @@ class StackedLinear(nn.Module):
         super().__init__()
         self.weight = nn.Parameter(torch.stack([layer.weight.detach().T for layer in layers]))
         self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]))
+        self.compute_dtype: torch.dtype | None = None
+        """The dtype of the batched product (None: the weights'). With ``torch.bfloat16`` the
+        inputs, weights and bias are rounded to it for the product only: the weights, their
+        gradients and Adam's state stay float32, and the output is float32 again, so losses,
+        softmax and the MDN's log-likelihood are computed in float32 (mixed precision)."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.weight.shape[2] == 1:
@@ -51,7 +56,23 @@ class StackedLinear(nn.Module):
             # differently (an agent's numbers would depend on the population's size)
             w = self.weight.transpose(1, 2)
             return (x * w).sum(-1, keepdim=True) + self.bias.unsqueeze(1)
-        return torch.baddbmm(self.bias.unsqueeze(1), aligned(x), self.weight)
+        dtype = self.compute_dtype
+        if dtype is None or dtype == x.dtype:
+            return torch.baddbmm(self.bias.unsqueeze(1), aligned(x), self.weight)
+        bias, weight = self.bias.unsqueeze(1).to(dtype), self.weight.to(dtype)
+        return torch.baddbmm(bias, x.to(dtype), weight).to(x.dtype)
+
+
+MATMUL_DTYPES = {"float32": None, "bfloat16": torch.bfloat16}
+"""``AgentConfig.matmul_dtype``'s values and the product dtype each gives the stacked layers."""
+
+
+def set_matmul_dtype(module: nn.Module, name: str) -> None:
+    """Compute every :class:`StackedLinear` product in ``module`` in ``name``'s dtype
+    (:data:`MATMUL_DTYPES`)."""
+    for layer in module.modules():
+        if isinstance(layer, StackedLinear):
+            layer.compute_dtype = MATMUL_DTYPES[name]
 
 
 ALIGN = 16
