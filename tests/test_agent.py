@@ -140,3 +140,25 @@ def test_train_and_evaluate_commands(tmp_path):
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--preset", "smoke"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 2 and "no V run was given" in done.stderr
+
+
+def test_an_agent_trains_and_is_evaluated_with_a_stochastic_human(tmp_path):
+    """hand_switch_prob reaches the training env, the test episodes and M's accuracy, which
+    then counts a draw with a moved hand as possible and says how often M keeps the hand."""
+    run = tmp_path / "stochastic"
+    done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
+                           "--episodes", "100", "--set", "imagination_start=50",
+                           "--set", "hand_switch_prob=0.3"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    done = subprocess.run([IMAGINE, "evaluate", str(run), "--episodes", "200"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (
+        "stochastic human: M's draws keep the hand" in done.stdout and "truth 70.0%" in done.stdout
+    )
+    accuracy = json.loads((run / "evaluation.json").read_text())["model_accuracy"]
+    assert 0.0 <= accuracy["hand_kept_sampled"] <= 1.0
+    assert load_agent(run).config.hand_switch_prob == 0.3
+    with pytest.raises(ConfigError, match="hand_switch_prob"):
+        agent_preset("smoke", hand_switch_prob=1.5)

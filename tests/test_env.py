@@ -213,3 +213,71 @@ def test_importing_the_package_registers_the_environment():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "(64, 64, 3)"
+
+
+# --- The stochastic human (issue 16) ------------------------------------------------------------
+
+
+def independent_next_states(state, action, p):
+    """The next-state distribution from the task's definition, written apart from rules.py:
+    cube a // 2 turns clockwise (a even) or back; then the hand stays (1 - p) or moves to each
+    other cube (p / 2)."""
+    d = list(state[:3])
+    d[action // 2] = (d[action // 2] + (1 if action % 2 == 0 else 3)) % 4
+    out = Counter()
+    for hand in range(3):
+        chance = 1 - p if hand == state[3] else p / 2
+        if chance > 0:
+            out[(*d, hand)] += chance
+    return dict(out)
+
+
+@pytest.mark.parametrize("p", [0.0, 0.1, 0.3])
+def test_the_stochastic_humans_distribution_is_the_rules(p):
+    """rules.next_state_distribution over all 192 x 6 transitions, against the definition."""
+    for state in rules.all_macrostates():
+        state = tuple(int(x) for x in state)
+        for action in range(6):
+            exact = rules.next_state_distribution(state, action, p)
+            expected = independent_next_states(state, action, p)
+            assert exact.keys() == expected.keys(), (state, action)
+            assert all(abs(exact[k] - expected[k]) < 1e-12 for k in exact), (state, action)
+            assert abs(sum(exact.values()) - 1) < 1e-12
+
+
+@pytest.mark.parametrize("task", rules.TASKS)
+def test_the_environment_draws_the_stochastic_humans_distribution(task):
+    """6000 environments, each from the same start, one action: the observed next macrostates
+    follow the exact distribution (each frequency within 4.5 standard errors), rewards and
+    ends follow the state after the hand moved."""
+    from gymnasium.vector import AutoresetMode
+
+    from imagine.env import GesturePuzzleVectorEnv
+
+    n, p = 6000, 0.3
+    envs = GesturePuzzleVectorEnv(n, task=task, hand_switch_prob=p,
+                                  autoreset_mode=AutoresetMode.DISABLED)  # fmt: skip
+    start = tuple(int(x) for x in rules.start_states(task)[5])
+    for action in (0, 3):
+        envs.reset(seed=action, options={"macrostates": np.array([start] * n)})
+        _, reward, terminated, _, info = envs.step(np.full(n, action))
+        seen = Counter(tuple(int(x) for x in s) for s in info["macrostate"])
+        exact = rules.next_state_distribution(start, action, p)
+        assert seen.keys() == exact.keys()
+        for state, chance in exact.items():
+            error = (chance * (1 - chance) / n) ** 0.5
+            assert abs(seen[state] / n - chance) < 4.5 * error, (state, seen[state], chance)
+        np.testing.assert_array_equal(reward, rules.rewards(info["macrostate"], task))
+        np.testing.assert_array_equal(terminated, rules.is_terminal(info["macrostate"], task))
+
+
+def test_check_env_passes_with_a_stochastic_human():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(gym.make(ENV_ID, task="hard", hand_switch_prob=0.3).unwrapped)
+
+
+def test_a_hand_switch_prob_must_be_a_probability():
+    for bad in (-0.1, 1.5, "often"):
+        with pytest.raises(ConfigError, match="hand_switch_prob"):
+            GesturePuzzleEnv(hand_switch_prob=bad)

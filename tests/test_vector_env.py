@@ -22,9 +22,10 @@ def make_vector(num_envs: int, task: str, **kwargs) -> GesturePuzzleVectorEnv:
     return env
 
 
-def make_sync(num_envs: int, task: str, mode: AutoresetMode) -> SyncVectorEnv:
+def make_sync(num_envs: int, task: str, mode: AutoresetMode, **kwargs) -> SyncVectorEnv:
     return SyncVectorEnv(
-        [lambda: gym.make(ENV_ID, task=task) for _ in range(num_envs)], autoreset_mode=mode
+        [lambda: gym.make(ENV_ID, task=task, **kwargs) for _ in range(num_envs)],
+        autoreset_mode=mode,
     )
 
 
@@ -94,12 +95,13 @@ def test_make_vec_with_a_bad_task_raises_config_error() -> None:
 # --- Step for step the same as N single environments --------------------------------------
 
 
+@pytest.mark.parametrize("p", [0.0, 0.3], ids=["paper", "stochastic-human"])
 @pytest.mark.parametrize("mode", MODES, ids=lambda m: m.value)
 @pytest.mark.parametrize("task", TASKS)
-def test_matches_sync_vector_env_step_for_step(task: str, mode: AutoresetMode) -> None:
+def test_matches_sync_vector_env_step_for_step(task: str, mode: AutoresetMode, p: float) -> None:
     n = 5
-    vec = make_vector(n, task, autoreset_mode=mode)
-    sync = make_sync(n, task, mode)
+    vec = make_vector(n, task, autoreset_mode=mode, hand_switch_prob=p)
+    sync = make_sync(n, task, mode, hand_switch_prob=p)
     obs_v, info_v = vec.reset(seed=123)
     obs_s, info_s = sync.reset(seed=123)
     np.testing.assert_array_equal(obs_v, obs_s)

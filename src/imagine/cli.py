@@ -403,11 +403,13 @@ def evaluate_agent(
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
-    result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed)
+    p = agent.config.hand_switch_prob
+    result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
+                            hand_switch_prob=p)  # fmt: skip
     accuracy = imagined = imagined_other = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
-        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task)
+        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p)
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
     detection = None if imagined is None else imagined.get("disagreement_auroc")
@@ -426,6 +428,9 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
+    if "hand_kept_sampled" in accuracy:
+        print(f"stochastic human: M's draws keep the hand {accuracy['hand_kept_sampled']:.1%} "
+              f"of the time (truth {1 - p:.1%})")  # fmt: skip
     from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
     where = "M_R" if from_memory else "new episodes"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "

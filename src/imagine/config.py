@@ -225,6 +225,9 @@ class AgentConfig:
 
     task: str = "original"
     """GesturePuzzle task: original or hard."""
+    hand_switch_prob: float = 0.0
+    """A stochastic human (issue 16): the probability that the hand moves to another cube
+    after each action (0: the paper's task; :mod:`imagine.env.rules`)."""
     method: str = "augmented"
     """baseline (real transitions only) or augmented (plus imaginary ones from episode I_start)."""
     episodes: int = 2000
@@ -433,6 +436,10 @@ class AgentConfig:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
         if self.real_in_place_of_imagined and self.method != "baseline":
             raise ConfigError("agent.real_in_place_of_imagined is a control for method baseline")
+        if not 0.0 <= self.hand_switch_prob <= 1.0:
+            raise ConfigError(
+                f"agent.hand_switch_prob must be in [0, 1], got {self.hand_switch_prob}"
+            )
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"agent.gamma must be in [0, 1], got {self.gamma}")
         if not (self.imagination_epsilon == -1.0 or 0.0 <= self.imagination_epsilon <= 1.0):

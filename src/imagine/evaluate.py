@@ -40,12 +40,18 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
 
 @torch.no_grad()
 def greedy_success(
-    controller: Controller, encoder, task: str, episodes: int, seed: int, composer=None
+    controller: Controller,
+    encoder,
+    task: str,
+    episodes: int,
+    seed: int,
+    composer=None,
+    hand_switch_prob: float = 0.0,
 ) -> dict[str, float]:
     """Run ``episodes`` greedy test episodes at once; success = the episode reached a goal."""
     envs = GesturePuzzleVectorEnv(
         episodes, task=task, fragments=None if composer is None else composer.pool,
-        autoreset_mode=AutoresetMode.SAME_STEP,
+        autoreset_mode=AutoresetMode.SAME_STEP, hand_switch_prob=hand_switch_prob,
     )  # fmt: skip
     obs, info = envs.reset(seed=seed)
     states = info["macrostate"]
@@ -72,7 +78,9 @@ def greedy_success(
 
 
 @torch.no_grad()
-def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
+def model_accuracy(
+    model: WorldModel, encoder, task: str, hand_switch_prob: float = 0.0
+) -> dict[str, float]:
     """M's accuracy from each macrostate's reference latent, read back by the encoder's
     classifier (DESIGN.md section 3):
 
@@ -86,7 +94,12 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
       real transition starts from: M's generalization (the paper's Fig. 7 test, over all of
       them).
     - ``transition_sampled``: as ``transition_nonterminal`` but with a *sample* of M
-      (component, then Gaussian; fixed seed): what imagination consumes.
+      (component, then Gaussian; fixed seed): what imagination consumes. With a stochastic
+      human (``hand_switch_prob`` > 0) a sample is right when it shows a possible next state
+      (the arrows right, the hand anywhere); the most likely next state must keep the hand.
+    - ``hand_kept_sampled`` (only with a stochastic human): of the samples with the arrows
+      right, the share that keeps the hand, M's probability of a hand that stays (truth:
+      1 - ``hand_switch_prob``).
     - ``reward`` / ``terminal``: over those same transitions, how often r (rounded to the nearest
       of +50, -5, -1) and d are right at the true next state's latent.
 
@@ -103,14 +116,18 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
     right_state = (encoder.classify(next_z).numpy() == truth).all(-1)
     seen = ~is_terminal(states, task)
     generator = torch.Generator().manual_seed(0)
-    sampled = model.mdn.sample(z[seen], torch.as_tensor(actions[seen]), generator)
-    right_sample = (encoder.classify(sampled).numpy() == truth[seen]).all(-1)
+    sampled = encoder.classify(
+        model.mdn.sample(z[seen], torch.as_tensor(actions[seen]), generator)
+    ).numpy()
+    arrows_right = (sampled[:, :3] == truth[seen][:, :3]).all(-1)
+    hand_kept = sampled[:, 3] == truth[seen][:, 3]
+    right_sample = arrows_right if hand_switch_prob > 0 else arrows_right & hand_kept
     true_next = latents[torch.as_tensor(macrostate_index(truth[seen]))]
     levels = torch.tensor([REWARD_GOAL, REWARD_ILLEGAL, REWARD_STEP])
     reward = levels[(model.reward(true_next)[:, None] - levels).abs().argmin(-1)].numpy()
     terminal = model.terminal.is_terminal(true_next).numpy()
     model.train(was_training)
-    return {
+    out = {
         "transition": float(right_state.mean()),
         "transition_nonterminal": float(right_state[seen].mean()),
         "transition_terminal": float(right_state[~seen].mean()),
@@ -118,6 +135,11 @@ def model_accuracy(model: WorldModel, encoder, task: str) -> dict[str, float]:
         "reward": float((reward == rewards(truth[seen], task)).mean()),
         "terminal": float((terminal == is_terminal(truth[seen], task)).mean()),
     }
+    if hand_switch_prob > 0:
+        out["hand_kept_sampled"] = (
+            float(hand_kept[arrows_right].mean()) if arrows_right.any() else 0.0
+        )
+    return out
 
 
 def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
@@ -209,7 +231,8 @@ def imagined_transitions(
         mu = held[torch.randint(len(held), (starts,), generator=generator)]
         sigma = torch.zeros_like(mu)
     else:
-        envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP)
+        envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP,
+                                      hand_switch_prob=c.hand_switch_prob)  # fmt: skip
         obs, info = envs.reset(seed=generator.initial_seed())
         mu, sigma = agent.encoder.encode(obs, info["macrostate"])
     breadth = c.imagination_breadth
@@ -227,7 +250,9 @@ def imagined_transitions(
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())
-    right = (agent.encoder.classify(rollout["next_z"]).numpy() == truth).all(-1)
+    judged = slice(0, 3) if c.hand_switch_prob > 0 else slice(0, 4)  # a moved hand is possible
+    shown = agent.encoder.classify(rollout["next_z"]).numpy()
+    right = (shown[..., judged] == truth[..., judged]).all(-1)
     return rollout, truth, right
 
 

@@ -185,12 +185,14 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
         if agent is None:
             errors[job.name] = f"{job.name}: {result.failures[i]}"
             continue
+        p = agent.config.hand_switch_prob
         evaluation = greedy_success(
-            agent.controller, agent.encoder, job.task, agent.config.eval_episodes, EVAL_SEED
-        )
+            agent.controller, agent.encoder, job.task, agent.config.eval_episodes, EVAL_SEED,
+            hand_switch_prob=p,
+        )  # fmt: skip
         accuracy = None
         if agent.config.trains_model:
-            accuracy = model_accuracy(agent.model, agent.encoder, job.task)
+            accuracy = model_accuracy(agent.model, agent.encoder, job.task, p)
         evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
                       "budget": budget, "time_steps": agent.t, **evaluation,
                       "model_accuracy": accuracy}  # fmt: skip

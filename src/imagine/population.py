@@ -121,7 +121,8 @@ class Population:
         self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)
         self.trust = ModelTrust(c, P, self.device)
         self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
-        self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED)
+        self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED,
+                                           hand_switch_prob=c.hand_switch_prob)  # fmt: skip
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
         if c.imagination_model != "learned":
             rules = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,

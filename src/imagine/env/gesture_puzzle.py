@@ -72,6 +72,8 @@ class GesturePuzzleEnv(gym.Env):
         n_cube_fragments: procedural fragments per (cube, direction); the paper's 16.
         n_hand_fragments: procedural fragments per pointed cube; the paper's 50.
         render_mode: ``"rgb_array"`` to let :meth:`render` return the full scene.
+        hand_switch_prob: a stochastic human (issue 16): the probability that the hand moves
+            to another cube after each action (0, the default: the paper's task).
 
     ``reset(options={"macrostate": (d0, d1, d2, h)})`` starts from a given legal non-goal state.
     """
@@ -86,9 +88,11 @@ class GesturePuzzleEnv(gym.Env):
         n_cube_fragments: int = 16,
         n_hand_fragments: int = 50,
         render_mode: str | None = None,
+        hand_switch_prob: float = 0.0,
     ) -> None:
         try:
             self.task = rules.check_task(task)
+            self.hand_switch_prob = rules.check_hand_switch_prob(hand_switch_prob)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -128,6 +132,7 @@ class GesturePuzzleEnv(gym.Env):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = rules.check_action(action)
         self._state = rules.apply_actions(self._state, np.int64(a))
+        self._state = rules.move_hand(self._state, self.hand_switch_prob, self.np_random)
         self._actions += 1
         terminated = bool(rules.is_terminal(self._state, self.task))
         truncated = not terminated and self._actions >= rules.MAX_EPISODE_ACTIONS

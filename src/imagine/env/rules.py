@@ -6,8 +6,10 @@ points toward the human), and ``h`` in {0, 1, 2} is the cube the human's hand po
 4^3 x 3 = 192 macrostates.
 
 Action ``a = 2*i + k`` rotates cube ``i`` by 90 degrees: clockwise for ``k = 0``
-(``d -> (d + 1) % 4``), counter-clockwise for ``k = 1`` (``d -> (d - 1) % 4``). The hand never
-moves within an episode.
+(``d -> (d + 1) % 4``), counter-clockwise for ``k = 1`` (``d -> (d - 1) % 4``). In the paper's
+task the hand never moves within an episode; with a *stochastic human* (``hand_switch_prob``
+p > 0, issue 16) it moves after each action, with probability p, to one of the other two cubes
+(each p / 2); the reward and the episode's end are those of the state after the hand moved.
 
 Everything here is pure and works on plain tuples or on integer arrays of shape (..., 4), so the
 single and the vectorized environment share one definition of the rules.
@@ -93,6 +95,37 @@ def apply_actions(states: np.ndarray, actions: np.ndarray) -> np.ndarray:
     rotated = (np.take_along_axis(s, cube[..., None], axis=-1)[..., 0] + turn) % N_DIRECTIONS
     np.put_along_axis(s, cube[..., None], rotated[..., None], axis=-1)
     return s
+
+
+def check_hand_switch_prob(p: float) -> float:
+    """Return ``p`` if it is a probability, else raise a ValueError."""
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+        raise ValueError(f"hand_switch_prob must be a probability in [0, 1], got {p!r}")
+    return float(p)
+
+
+def move_hand(state: np.ndarray, p: float, rng: np.random.Generator) -> np.ndarray:
+    """The stochastic human after an action: with probability ``p`` the hand of ``state`` (4,)
+    moves to one of the other two cubes, each equally likely (one uniform draw from ``rng``
+    and, if it moves, one integer). With ``p == 0`` nothing is drawn: the paper's task has the
+    random streams it has without this option."""
+    if p == 0.0 or rng.random() >= p:
+        return state
+    moved = np.array(state, dtype=np.int64, copy=True)
+    moved[N_CUBES] = (moved[N_CUBES] + 1 + rng.integers(N_CUBES - 1)) % N_CUBES
+    return moved
+
+
+def next_state_distribution(state: Macrostate, action: int, p: float) -> dict[Macrostate, float]:
+    """The exact distribution of the next macrostate after ``action`` in ``state`` with
+    ``hand_switch_prob`` p: the rotated state with its hand kept (1 - p) or moved to each other
+    cube (p / 2 each)."""
+    d0, d1, d2, h = transition(state, action)
+    out = {(d0, d1, d2, h): 1.0 - p}
+    for other in range(N_CUBES):
+        if other != h and p > 0:
+            out[(d0, d1, d2, other)] = p / (N_CUBES - 1)
+    return out
 
 
 def rewards(next_states: np.ndarray, task: str) -> np.ndarray:

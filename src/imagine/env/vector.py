@@ -57,12 +57,14 @@ class GesturePuzzleVectorEnv(VectorEnv):
         n_hand_fragments: int = 50,
         render_mode: str | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        hand_switch_prob: float = 0.0,
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
         num_envs = int(num_envs)
         try:
             self.task = rules.check_task(task)
+            self.hand_switch_prob = rules.check_hand_switch_prob(hand_switch_prob)
             mode = AutoresetMode(autoreset_mode)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
@@ -174,6 +176,10 @@ class GesturePuzzleVectorEnv(VectorEnv):
         resetting = self._autoreset.copy()
         stepping = ~resetting
         self._states[stepping] = rules.apply_actions(self._states[stepping], a[stepping])
+        if self.hand_switch_prob > 0:  # each env draws from its own stream, as it does alone
+            for i in np.flatnonzero(stepping):
+                self._states[i] = rules.move_hand(self._states[i], self.hand_switch_prob,
+                                                  self._rng(i))  # fmt: skip
         self._actions[stepping] += 1
         terminated = rules.is_terminal(self._states, self.task) & stepping
         truncated = ~terminated & stepping & (self._actions >= rules.MAX_EPISODE_ACTIONS)
