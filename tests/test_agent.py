@@ -157,8 +157,48 @@ def test_an_agent_trains_and_is_evaluated_with_a_stochastic_human(tmp_path):
     assert (
         "stochastic human: M's draws keep the hand" in done.stdout and "truth 70.0%" in done.stdout
     )
-    accuracy = json.loads((run / "evaluation.json").read_text())["model_accuracy"]
-    assert 0.0 <= accuracy["hand_kept_sampled"] <= 1.0
+    evaluation = json.loads((run / "evaluation.json").read_text())
+    assert 0.0 <= evaluation["model_accuracy"]["hand_kept_sampled"] <= 1.0
+    assert 0.0 <= evaluation["hand_calibration"]["total_variation"] <= 1.0
     assert load_agent(run).config.hand_switch_prob == 0.3
     with pytest.raises(ConfigError, match="hand_switch_prob"):
         agent_preset("smoke", hand_switch_prob=1.5)
+
+
+def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
+    """An M whose three components sit on the kept and the two moved next states, weighted
+    1 - p, p / 2, p / 2, is calibrated; one that always keeps the hand is off by p."""
+    from imagine.encoder import OracleEncoder
+    from imagine.env.rules import apply_actions, macrostate_index
+    from imagine.evaluate import hand_calibration
+    from imagine.world_model import Mixture
+
+    encoder, p = OracleEncoder(), 0.3
+    latents = encoder.state_latents()
+
+    class TrueMDN(torch.nn.Module):
+        def __init__(self, weights):
+            super().__init__()
+            self.weights = torch.tensor(weights)
+
+        def forward(self, z, action):
+            now = encoder.classify(z).numpy()
+            rotated = apply_actions(now, action.numpy())
+            means = []
+            for shift in (0, 1, 2):
+                moved = rotated.copy()
+                moved[:, 3] = (moved[:, 3] + shift) % 3
+                means.append(latents[torch.as_tensor(macrostate_index(moved))])
+            mu = torch.stack(means, 1)
+            return Mixture(self.weights.log().expand(len(z), 3), mu, torch.full_like(mu, 0.01))
+
+    class StubM(torch.nn.Module):
+        def __init__(self, weights):
+            super().__init__()
+            self.mdn = TrueMDN(weights)
+
+    calibrated = hand_calibration(StubM([1 - p, p / 2, p / 2]), encoder, "hard", p)
+    assert abs(calibrated["kept"] - 0.7) < 1e-6 and abs(calibrated["moved_next"] - 0.15) < 1e-6
+    assert calibrated["wrong"] < 1e-6 and calibrated["total_variation"] < 1e-6
+    stubborn = hand_calibration(StubM([1.0, 1e-9, 1e-9]), encoder, "hard", p)
+    assert abs(stubborn["total_variation"] - p) < 1e-6

@@ -399,17 +399,23 @@ def evaluate_agent(
     transitions its gate accepts and rejects are."""
     from imagine.agent import load_agent
     from imagine.checkpoint import write_json
-    from imagine.evaluate import greedy_success, imagined_accuracy, model_accuracy
+    from imagine.evaluate import (
+        greedy_success,
+        hand_calibration,
+        imagined_accuracy,
+        model_accuracy,
+    )
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
     p = agent.config.hand_switch_prob
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
                             hand_switch_prob=p)  # fmt: skip
-    accuracy = imagined = imagined_other = None
+    accuracy = imagined = imagined_other = calibration = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p)
+        calibration = hand_calibration(agent.model, agent.encoder, agent.config.task, p)
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
     detection = None if imagined is None else imagined.get("disagreement_auroc")
@@ -417,7 +423,7 @@ def evaluate_agent(
     write_json(run / "evaluation.json", {
         "after_episodes": agent.episode, **result, "model_accuracy": accuracy,
         "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other,
-        "imagined_disagreement_auroc": detection,
+        "imagined_disagreement_auroc": detection, "hand_calibration": calibration,
         "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
@@ -430,7 +436,10 @@ def evaluate_agent(
           .format(**accuracy))  # fmt: skip
     if "hand_kept_sampled" in accuracy:
         print(f"stochastic human: M's draws keep the hand {accuracy['hand_kept_sampled']:.1%} "
-              f"of the time (truth {1 - p:.1%})")  # fmt: skip
+              f"of the time (truth {1 - p:.1%}); its mixture's weight: hand kept "
+              "{kept:.1%}, moved {moved_next:.1%} / {moved_previous:.1%} (truth {half:.1%} "
+              "each), wrong state {wrong:.1%}, total variation {total_variation:.3f}"
+              .format(half=p / 2, **calibration))  # fmt: skip
     from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
     where = "M_R" if from_memory else "new episodes"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "

@@ -142,6 +142,43 @@ def model_accuracy(
     return out
 
 
+@torch.no_grad()
+def hand_calibration(model: WorldModel, encoder, task: str, p: float) -> dict[str, float]:
+    """How M's mixture divides its probability among the hand's outcomes (issue 16), over
+    every transition from a non-terminal state: each component's weight goes to the outcome
+    its mean shows (read back by the encoder's classifier): the hand kept (truth 1 - p), moved
+    to one of the other two cubes (truth p / 2 each, ``moved_*``: the cube after the pointed
+    one, then the one before), or a wrong state (arrows wrong). ``total_variation``: the mean
+    over transitions of half the summed absolute differences from the truth (0: calibrated)."""
+    states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
+    actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
+    seen = ~is_terminal(states, task)
+    states, actions = states[seen], actions[seen]
+    truth = apply_actions(states, actions)
+    z = encoder.state_latents()[torch.as_tensor(macrostate_index(states))]
+    was_training = model.training
+    model.eval()
+    mixture = model.mdn(z, torch.as_tensor(actions))
+    model.train(was_training)
+    n, k, d = mixture.mu.shape
+    shown = encoder.classify(mixture.mu.reshape(n * k, d)).numpy().reshape(n, k, 4)
+    weight = mixture.log_pi.exp().numpy()
+    arrows = (shown[..., :3] == truth[:, None, :3]).all(-1)
+    hand = truth[:, None, 3]
+    outcomes = [arrows & (shown[..., 3] == (hand + shift) % 3) for shift in (0, 1, 2)]
+    mass = np.stack([(weight * o).sum(-1) for o in outcomes], -1)  # (n, 3): kept, +1, +2
+    wrong = 1.0 - mass.sum(-1)
+    target = np.array([1.0 - p, p / 2, p / 2])
+    return {
+        "p": p,
+        "kept": float(mass[:, 0].mean()),
+        "moved_next": float(mass[:, 1].mean()),
+        "moved_previous": float(mass[:, 2].mean()),
+        "wrong": float(wrong.mean()),
+        "total_variation": float(0.5 * (np.abs(mass - target).sum(-1) + wrong).mean()),
+    }
+
+
 def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
     """The random agent of Tables I and II: uniform actions in ``episodes`` test episodes."""
     envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode=AutoresetMode.SAME_STEP)
