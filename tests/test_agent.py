@@ -15,7 +15,7 @@ from imagine.config import agent_preset, check_imagines
 from imagine.env.rules import REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
-from imagine.evaluate import greedy_success, wilson_interval
+from imagine.evaluate import greedy_success, mean_interval, wilson_interval
 from imagine.metrics import read_metrics
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
@@ -100,6 +100,14 @@ def test_wilson_interval():
     assert wilson_interval(0, 1000)[0] == pytest.approx(0.0, abs=1e-12)
 
 
+def test_mean_interval_of_returns():
+    returns = np.array([50.0, -1.0] * 500)  # mean 24.5, std 25.51
+    low, high = mean_interval(returns)
+    assert low == pytest.approx(24.5 - 1.96 * 25.5128 / 1000**0.5, abs=1e-3)
+    assert high - 24.5 == pytest.approx(24.5 - low)
+    assert mean_interval(np.array([3.0])) == (3.0, 3.0)
+
+
 def test_train_and_evaluate_commands(tmp_path):
     run = tmp_path / "run"
     (tmp_path / "c.yaml").write_text("gamma: 0.9\n")
@@ -113,10 +121,12 @@ def test_train_and_evaluate_commands(tmp_path):
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "success" in done.stdout and "M accuracy: transition" in done.stdout
+    assert "mean return" in done.stdout
     assert "imagined transitions (sample, as in training" in done.stdout
     assert "the same M with imagination_draw=mode" in done.stdout
     written = json.loads((run / "evaluation.json").read_text())
     assert 0 <= written["imagined_accuracy_mode"]["state"] <= 1
+    assert written["return_ci_low"] <= written["mean_return"] <= written["return_ci_high"]
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert saved["gamma"] == 0.9 and saved["dropout"] == 0.25
     done = subprocess.run([IMAGINE, "train", str(tmp_path / "pop"), "--preset", "smoke",

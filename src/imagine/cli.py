@@ -427,7 +427,9 @@ def evaluate_agent(
         "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
-    print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes")
+    print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes; "
+          "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f})"
+          .format(**result))  # fmt: skip
     if accuracy is None:
         print("M accuracy: not measured (a baseline run does not train M)")
         return

@@ -39,6 +39,14 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
 
 
 @torch.no_grad()
+def mean_interval(values: np.ndarray, z: float = 1.96) -> tuple[float, float]:
+    """The normal-approximation 95% interval of the mean of ``values`` (the test episodes'
+    returns: independent episodes, many of them)."""
+    values = np.asarray(values, dtype=np.float64)
+    half = z * values.std(ddof=1) / math.sqrt(len(values)) if len(values) > 1 else 0.0
+    return float(values.mean() - half), float(values.mean() + half)
+
+
 def greedy_success(
     controller: Controller,
     encoder,
@@ -73,8 +81,10 @@ def greedy_success(
     controller.train()
     n = int(success.sum())
     low, high = wilson_interval(n, episodes)
+    return_low, return_high = mean_interval(returns)
     return {"success": n / episodes, "ci_low": low, "ci_high": high,
-            "mean_return": float(returns.mean()), "episodes": episodes}  # fmt: skip
+            "mean_return": float(returns.mean()), "return_ci_low": return_low,
+            "return_ci_high": return_high, "episodes": episodes}  # fmt: skip
 
 
 @torch.no_grad()
