@@ -1,5 +1,6 @@
 """Algorithm 1 end to end (oracle encoder): it learns, it resumes, it rejects bad settings."""
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -212,3 +213,43 @@ def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
     assert calibrated["wrong"] < 1e-6 and calibrated["total_variation"] < 1e-6
     stubborn = hand_calibration(StubM([1.0, 1e-9, 1e-9]), encoder, "hard", p)
     assert abs(stubborn["total_variation"] - p) < 1e-6
+
+
+def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
+    """init_from (reward transfer, issue 16): the MDN is the source run's, r, d and C fresh;
+    a baseline source or another encoder is refused in one line."""
+    from imagine.encoder import OracleEncoder
+    from imagine.population import Population, new_networks
+    from imagine.training import dynamics_source
+
+    source = tmp_path / "original"
+    config = agent_preset("smoke", encoder="oracle", episodes=30, imagination_start=10)
+    train(config, source, threads=1)
+    hard = dataclasses.replace(config, task="hard", init_from=str(source), seed=3)
+    population = Population([hard], OracleEncoder())
+    population.start_dynamics_from(0, dynamics_source(hard))
+    _, model = population.networks(0)
+    trained, fresh = load_agent(source).model, new_networks(hard, 8)[1]
+    for mine, theirs in zip(
+        model.mdn.state_dict().values(), trained.mdn.state_dict().values(), strict=True
+    ):
+        assert torch.equal(mine, theirs)
+    for mine, new in zip(
+        model.reward.state_dict().values(), fresh.reward.state_dict().values(), strict=True
+    ):
+        assert torch.equal(mine, new)
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "hard"), "--task", "hard",
+                           "--init-from", str(source), "--preset", "smoke", "--oracle",
+                           "--episodes", "20", "--set", "imagination_start=10"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    base = tmp_path / "base"
+    train(dataclasses.replace(config, method="baseline", episodes=5), base, threads=1)
+    for folder, words in ((base, "baseline run"), (tmp_path / "none", "holds no agent run")):
+        done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--init-from", str(folder),
+                               "--preset", "smoke", "--oracle", "--episodes", "40",
+                               "--set", "imagination_start=20"],
+                              capture_output=True, text=True, check=False)  # fmt: skip
+        assert done.returncode == 2 and words in done.stderr, done.stderr
+    with pytest.raises(ConfigError, match="encoder"):
+        dynamics_source(dataclasses.replace(hard, encoder="vae", vae_run="somewhere"))

@@ -312,6 +312,13 @@ def train_agent(
         bool | None,
         typer.Option("--oracle/--no-oracle", help="Feed C and M the true macrostate's embedding."),
     ] = None,
+    init_from: Annotated[
+        Path | None,
+        typer.Option(
+            help="A trained run (or folder of seed-N runs) whose M's MDN starts this "
+            "agent's: the dynamics transfer, r, d and C start fresh."
+        ),
+    ] = None,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
     device: DeviceOption = "auto",
     config_file: Annotated[
@@ -347,6 +354,7 @@ def train_agent(
         "episodes": ("--episodes", episodes),
         "encoder": ("--oracle", None if oracle is None else "oracle" if oracle else "vae"),
         "vae_run": ("--vae", None if vae is None else str(vae)),
+        "init_from": ("--init-from", None if init_from is None else str(init_from)),
     }
     config = check_imagines(agent_preset(preset, **with_options(overrides, given)))
     if seeds is None:

@@ -225,6 +225,11 @@ class AgentConfig:
 
     task: str = "original"
     """GesturePuzzle task: original or hard."""
+    init_from: str | None = None
+    """A trained run whose M starts this agent's (issue 16, reward transfer; with a folder of
+    ``seed-N`` runs, the one of this agent's seed): its MDN(s), the dynamics, which `original`
+    and `hard` share; r, d and C start fresh, as do the memories. Read when the run starts,
+    not when it resumes. The source must use the same encoder (V run) and M's architecture."""
     hand_switch_prob: float = 0.0
     """A stochastic human (issue 16): the probability that the hand moves to another cube
     after each action (0: the paper's task; :mod:`imagine.env.rules`)."""

@@ -395,6 +395,17 @@ class Population:
             "device": self.device.type,
         })  # fmt: skip
 
+    def start_dynamics_from(self, agent: int, source: Path) -> None:
+        """Agent ``agent``'s MDN member(s) from the run in ``source`` (``init_from``): its r, d
+        and C keep their fresh weights; M's optimizer state is fresh for all."""
+        tensors = load_tensors(source / "agent.safetensors", "agent checkpoint")
+        where = str(source / "agent.safetensors")
+        model = self.model.export_agent(agent, copy.deepcopy(self.templates[1]))
+        saved = part(tensors, "model")
+        load_state_dict_strict(model.mdn, part(saved, "mdn"), where)
+        load_state_dict_strict(model.more_mdns, part(saved, "more_mdns"), where)
+        self.model.import_agent(agent, model.to(self.device))
+
     def load(self, agent: int, folder: Path) -> None:
         """Resume one agent from its run folder (at the start of its next episode)."""
         meta = read_json(folder / "agent.json", "agent checkpoint metadata")

@@ -21,11 +21,11 @@ import numpy as np
 import torch
 import yaml
 
-from imagine.agent import Agent, check_folder, make_encoder
+from imagine.agent import Agent, check_folder, make_encoder, saved_config
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
 from imagine.devices import resolve_device
-from imagine.errors import Interrupted
+from imagine.errors import ConfigError, Interrupted
 from imagine.evaluate import model_accuracy
 from imagine.metrics import MetricsLogger
 from imagine.population import Population
@@ -38,6 +38,34 @@ class PopulationResult:
     """Each agent after its budget (None for one that failed)."""
     failures: dict[int, str]
     """A line for each agent that failed (by index), naming its folder."""
+
+
+TRANSFERRED = ("encoder", "vae_run", "latent_space", "n_components", "model_residual",
+               "model_ensemble")  # fmt: skip
+"""What a run that starts M (``init_from``) must share with the agent: M's inputs and form."""
+
+
+def dynamics_source(config: AgentConfig) -> Path:
+    """The run whose MDN starts this agent's M: ``config.init_from``, or its ``seed-N``
+    folder for this agent's seed when it has one; an error if it cannot serve."""
+    folder = Path(str(config.init_from))
+    if (folder / f"seed-{config.seed}").is_dir():
+        folder = folder / f"seed-{config.seed}"
+    source = saved_config(folder)
+    if source is None:
+        raise ConfigError(f"init_from: {folder} holds no agent run (no agent.json)")
+    for name in TRANSFERRED:
+        mine, theirs = getattr(config, name), getattr(source, name)
+        if name == "vae_run" and mine is not None and theirs is not None:
+            mine, theirs = Path(mine).resolve(), Path(theirs).resolve()
+        if mine != theirs:
+            raise ConfigError(
+                f"init_from: {folder} has {name} {getattr(source, name)!r}, this agent "
+                f"{getattr(config, name)!r}; M's dynamics transfer only between the same {name}"
+            )
+    if not source.trains_model:
+        raise ConfigError(f"init_from: {folder} is a baseline run; it trained no M")
+    return folder
 
 
 def train_population(
@@ -63,6 +91,8 @@ def train_population(
         folder.mkdir(parents=True, exist_ok=True)
         if saved[i] is not None:
             population.load(i, folder)
+        elif config.init_from is not None:
+            population.start_dynamics_from(i, dynamics_source(config))
         atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
         loggers.append(MetricsLogger(folder, resume_step=population.episode[i]))
         if population.episode[i] >= config.episodes:
