@@ -189,9 +189,12 @@ def hand_calibration(model: WorldModel, encoder, task: str, p: float) -> dict[st
     }
 
 
-def random_success(task: str, episodes: int, seed: int) -> dict[str, float]:
+def random_success(
+    task: str, episodes: int, seed: int, hand_switch_prob: float = 0.0
+) -> dict[str, float]:
     """The random agent of Tables I and II: uniform actions in ``episodes`` test episodes."""
-    envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode=AutoresetMode.SAME_STEP)
+    envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode=AutoresetMode.SAME_STEP,
+                                  hand_switch_prob=hand_switch_prob)  # fmt: skip
     envs.reset(seed=seed)
     rng = np.random.default_rng(seed)
     running = np.ones(episodes, dtype=bool)

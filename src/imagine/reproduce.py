@@ -158,15 +158,18 @@ def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -
     return str(folder)
 
 
-def random_agents(tasks: tuple[str, ...], out: Path) -> dict[str, float]:
-    """Success rate of the random agent per task (cached in OUT/random.json)."""
+def random_agents(
+    tasks: tuple[str, ...], out: Path, hand_switch_prob: float = 0.0
+) -> dict[str, float]:
+    """Success rate of the random agent per task (cached in OUT/random.json), in the study's
+    environment (a stochastic human's included)."""
     from imagine.evaluate import random_success
 
     path = out / "random.json"
     cached = read_json(path, "random-agent results") if path.is_file() else {}
     for task in tasks:
         if task not in cached:
-            cached[task] = random_success(task, RANDOM_EPISODES, seed=0)["success"]
+            cached[task] = random_success(task, RANDOM_EPISODES, 0, hand_switch_prob)["success"]
     write_json(path, cached)
     return {task: cached[task] for task in tasks}
 
@@ -185,7 +188,7 @@ def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list
     if not evaluations:
         raise ConfigError(f"no finished evaluations in {out / 'runs'} to report")
     rows = summarize(evaluations)
-    random = random_agents(config.tasks, out)
+    random = random_agents(config.tasks, out, config.overrides.get("hand_switch_prob", 0.0))
     tables = write_tables(out, rows, random)
     curves = curve_summary(evaluations)
     curves_md = curve_table(curves)
