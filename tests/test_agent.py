@@ -253,3 +253,26 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
         assert done.returncode == 2 and words in done.stderr, done.stderr
     with pytest.raises(ConfigError, match="encoder"):
         dynamics_source(dataclasses.replace(hard, encoder="vae", vae_run="somewhere"))
+
+
+def test_an_agent_acts_on_camera_images(tmp_path):
+    """Agent.load(RUN).act: C's greedy actions for one image or a batch, the same the test
+    episodes take; epsilon-greedy from a given generator; the oracle needs macrostates."""
+    from imagine.agent import Agent, greedy_actions
+
+    config = agent_preset("smoke", encoder="oracle", method="baseline", episodes=20)
+    train(config, tmp_path, threads=1)
+    agent = Agent.load(tmp_path)
+    envs = GesturePuzzleVectorEnv(8, task="original")
+    obs, info = envs.reset(seed=0)
+    actions = agent.act(obs, info["macrostate"])
+    assert actions.shape == (8,) and actions.dtype == np.int64
+    assert np.array_equal(
+        actions, greedy_actions(agent.controller, agent.encoder, obs, info["macrostate"])
+    )
+    assert agent.act(obs[3], info["macrostate"][3]) == actions[3]
+    explored = agent.act(np.repeat(obs, 50, 0), np.repeat(info["macrostate"], 50, 0), epsilon=1.0,
+                         rng=np.random.default_rng(0))  # fmt: skip
+    assert set(explored.tolist()) == set(range(6))
+    with pytest.raises(ConfigError, match="pass macrostates"):
+        agent.act(obs)

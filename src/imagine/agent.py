@@ -15,7 +15,11 @@ C on M_R; from episode I_start on (method ``augmented``), I_B imagined rollouts 
 I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with imagination off.
 
 :class:`Agent` is a trained agent as evaluation, planning and the generalization test use it:
-its config, encoder, C and M.
+its config, encoder, C and M. ``Agent.load(RUN)`` reads one; ``agent.act(observations)`` gives
+C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step::
+
+    agent = Agent.load("runs/hard-aug/seed-0")
+    actions = agent.act(images)  # uint8 (N, 64, 64, 3) -> int64 (N,)
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json
@@ -63,6 +68,51 @@ class Agent:
     memory_starts: tuple[torch.Tensor, torch.Tensor] | None = None
     """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
     ``support`` uncertainty measures against, :mod:`imagine.gate`); None if not saved."""
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Agent:
+        """The agent of a run folder, as of its last checkpoint (:func:`load_agent`)."""
+        return load_agent(folder)
+
+    def act(
+        self,
+        observations: np.ndarray,
+        macrostates: np.ndarray | None = None,
+        epsilon: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
+        """C's actions for observations: uint8 images (N, 64, 64, 3), or one (64, 64, 3) for
+        one action. Greedy (argmax_a Q(mu, a) with mu from the encoder), or with ``epsilon``
+        a uniform random action that often, drawn from ``rng``. ``macrostates`` (N, 4) only
+        for the oracle encoder, which reads the true state instead of the image."""
+        images = np.asarray(observations)
+        one = images.ndim == 3
+        if one:
+            images = images[None]
+            macrostates = None if macrostates is None else np.asarray(macrostates)[None]
+        if self.config.encoder == "oracle" and macrostates is None:
+            raise ConfigError("an oracle-encoder agent acts on macrostates: pass macrostates")
+        actions = greedy_actions(self.controller, self.encoder, images, macrostates)
+        if epsilon > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            explore = rng.random(len(actions)) < epsilon
+            actions = np.where(explore, rng.integers(self.controller.n_actions, size=len(actions)),
+                               actions)  # fmt: skip
+        return actions[0] if one else actions
+
+
+@torch.no_grad()
+def greedy_actions(
+    controller: Controller, encoder, images: np.ndarray, states: np.ndarray | None
+) -> np.ndarray:
+    """argmax_a Q(mu, a) for images (N, 64, 64, 3), mu from the encoder: int64 (N,)."""
+    mu, _ = encoder.encode(images, states)
+    device = next(controller.parameters()).device
+    was_training = controller.training
+    controller.eval()
+    actions = controller(mu.to(device)).argmax(-1).cpu().numpy()
+    controller.train(was_training)
+    return actions
 
 
 def saved_config(folder: Path) -> AgentConfig | None:

@@ -10,6 +10,7 @@ import torch
 from gymnasium.vector import AutoresetMode
 from scipy.stats import rankdata
 
+from imagine.agent import greedy_actions
 from imagine.controller import Controller, PopulationController
 from imagine.env.rules import (
     N_ACTIONS,
@@ -38,7 +39,6 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     return (centre - half, centre + half)
 
 
-@torch.no_grad()
 def mean_interval(values: np.ndarray, z: float = 1.96) -> tuple[float, float]:
     """The normal-approximation 95% interval of the mean of ``values`` (the test episodes'
     returns: independent episodes, many of them)."""
@@ -47,6 +47,7 @@ def mean_interval(values: np.ndarray, z: float = 1.96) -> tuple[float, float]:
     return float(values.mean() - half), float(values.mean() + half)
 
 
+@torch.no_grad()
 def greedy_success(
     controller: Controller,
     encoder,
@@ -66,19 +67,15 @@ def greedy_success(
     running = np.ones(episodes, dtype=bool)
     success = np.zeros(episodes, dtype=bool)
     returns = np.zeros(episodes)
-    controller.eval()
     actions = np.zeros(episodes, dtype=np.int64)
     while running.any():
         live = np.flatnonzero(running)  # only episodes still running need V and C
-        mu, _ = encoder.encode(obs[live], states[live])
-        device = next(controller.parameters()).device
-        actions[live] = controller(mu.to(device)).argmax(-1).cpu().numpy()
+        actions[live] = greedy_actions(controller, encoder, obs[live], states[live])
         obs, reward, terminated, truncated, info = envs.step(actions)
         returns += np.where(running, reward, 0.0)
         success |= running & (reward == REWARD_GOAL)
         running &= ~(terminated | truncated)
         states = info["macrostate"]
-    controller.train()
     n = int(success.sum())
     low, high = wilson_interval(n, episodes)
     return_low, return_high = mean_interval(returns)
