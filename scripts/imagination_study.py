@@ -239,6 +239,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "reward_dropout": 0.0},
     ),
+    # round 9: a tempered draw instead of the mode (M's sampled accuracy at the agent's draw)
+    "augmented, as s44, imagined next state a draw at temperature 0.5": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "imagination_draw": "sample", "imagination_temperature": 0.5},
+    ),
+    "augmented, as s44, imagined next state a draw at temperature 0.25 (scales x 0.5)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "imagination_draw": "sample", "imagination_temperature": 0.25},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
@@ -321,7 +330,15 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
                 for r in rows
                 if r["task"] == t and r["budget"] == last and r["model_accuracy"]
             ]
-            cells.append(cell(accs))
+            tempered = [
+                r["model_accuracy"]["transition_sampled_tempered"]
+                for r in rows
+                if r["task"] == t and r["budget"] == last
+                and "transition_sampled_tempered" in (r["model_accuracy"] or {})
+            ]  # fmt: skip
+            cells.append(
+                cell(accs) + (f" (at its temperature {cell(tempered)})" if tempered else "")
+            )
         for t in tasks:
             found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
             both = [cell([x[k] for x in found]) for k in ("state", "reward")]

@@ -82,6 +82,21 @@ def test_rollouts_from_the_mean_with_the_mode_are_deterministic():
     assert all(torch.equal(runs[0][k], runs[1][k]) for k in first)
 
 
+def test_rollouts_at_a_low_temperature_draw_near_the_mode():
+    """imagination_temperature reaches M's draws in imagination: at tau = 1e-6 a draw is the
+    mode up to sigma * 1e-3."""
+    torch.manual_seed(0)
+    model = PopulationWorldModel([WorldModel(4, dropout=0.0)])
+    controller = PopulationController([Controller(4)])
+    mu, sigma = torch.randn(1, 4), torch.zeros(1, 4)
+    cold, warm = (imagine_rollouts(model, controller, mu, sigma, 2, 1, [0.0],
+                                   [torch.Generator().manual_seed(0)], draw="sample",
+                                   temperature=t)[0] for t in (1e-6, 1.0))  # fmt: skip
+    mode = model.mode(cold["z"].unsqueeze(0), cold["action"].unsqueeze(0))[0]
+    assert torch.allclose(cold["next_z"], mode, atol=1e-2)
+    assert not torch.allclose(warm["next_z"], mode, atol=1e-2)
+
+
 def test_bad_imagination_choices_are_refused():
     with pytest.raises(ConfigError, match="model_latents must be one of sample, mu"):
         agent_preset("fast", model_latents="means")
@@ -91,6 +106,8 @@ def test_bad_imagination_choices_are_refused():
         agent_preset("fast", imagination_epsilon=1.5)
     with pytest.raises(ConfigError, match="latent_space must be one of posterior, standardized"):
         agent_preset("fast", latent_space="whitened")
+    with pytest.raises(ConfigError, match="imagination_temperature must be positive"):
+        agent_preset("fast", imagination_temperature=0.0)
     with pytest.raises(ConfigError, match="reward_loss must be one of logcosh, mse"):
         agent_preset("fast", reward_loss="huber")
     with pytest.raises(ConfigError, match=r"reward_dropout must be in \[0, 1\) or null"):
@@ -203,7 +220,7 @@ class RuleModel:
     def mode(self, z, action):
         return self._next(z, action)
 
-    def predict(self, z, action, generators, draw):
+    def predict(self, z, action, generators, draw, temperature=1.0):
         from imagine.world_model import Prediction
 
         return Prediction(self._next(z, action), torch.zeros(z.shape[:-1]))

@@ -422,7 +422,8 @@ def evaluate_agent(
     accuracy = imagined = imagined_other = calibration = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
-        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p)
+        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p,
+                                  agent.config.imagination_temperature)  # fmt: skip
         calibration = hand_calibration(agent.model, agent.encoder, agent.config.task, p)
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
@@ -444,6 +445,9 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
+    if "transition_sampled_tempered" in accuracy:
+        print(f"M's draws at imagination_temperature {agent.config.imagination_temperature}: "
+              f"right {accuracy['transition_sampled_tempered']:.1%} (non-terminal)")  # fmt: skip
     if "hand_kept_sampled" in accuracy:
         print(f"stochastic human: M's draws keep the hand {accuracy['hand_kept_sampled']:.1%} "
               f"of the time (truth {1 - p:.1%}); its mixture's weight: hand kept "

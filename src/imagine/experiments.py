@@ -192,7 +192,8 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
         )  # fmt: skip
         accuracy = None
         if agent.config.trains_model:
-            accuracy = model_accuracy(agent.model, agent.encoder, job.task, p)
+            accuracy = model_accuracy(agent.model, agent.encoder, job.task, p,
+                                      agent.config.imagination_temperature)  # fmt: skip
         evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
                       "budget": budget, "time_steps": agent.t, **evaluation,
                       "model_accuracy": accuracy}  # fmt: skip

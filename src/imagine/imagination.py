@@ -64,6 +64,7 @@ def imagine_rollouts(
     generators: Sequence[torch.Generator | None],
     draw: str = "sample",
     scale: torch.Tensor | None = None,
+    temperature: float = 1.0,
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
     disagreement, rollout, step)`` of ``breadth`` rollouts of up to ``depth`` steps from its
@@ -71,7 +72,8 @@ def imagine_rollouts(
     from each of ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order
     imagined (step by step, rollouts in order within a step);
     None for agents without one. ``draw``: each next state a sample of M's mixture (the
-    paper), or its mode (the mean of the heaviest component). ``scale``: the unit of
+    paper; at ``temperature``, :func:`~imagine.world_model.sample_mixture`), or its mode (the
+    mean of the heaviest component). ``scale``: the unit of
     disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
     ``sigma`` (pass V's own when ``sigma`` is not V's)."""
     if mu.dim() == 2:
@@ -92,7 +94,7 @@ def imagine_rollouts(
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing)
-        next_z, spread = model.predict(z, action, drawing, draw)
+        next_z, spread = model.predict(z, action, drawing, draw, temperature)
         done = model.is_terminal(next_z)
         reward = model.predict_reward(next_z)
         steps.append((z, action, next_z, reward, done.float(), spread / unit, rollout,

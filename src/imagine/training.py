@@ -136,7 +136,10 @@ def _after_episode(
     e = population.episode[i]
     if population.config.trains_model and e % config.accuracy_every == 0:
         _, model = population.networks(i)
-        accuracy = model_accuracy(model, population.encoder, config.task, config.hand_switch_prob)
+        accuracy = model_accuracy(
+            model, population.encoder, config.task, config.hand_switch_prob,
+            config.imagination_temperature,
+        )  # fmt: skip
         for key, value in accuracy.items():
             logger.record(f"model/{key}_accuracy", value)
     if e % config.log_every == 0 or e == config.episodes:

@@ -50,6 +50,7 @@ class TrueLatentModel:
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None] = (),
         draw: str = "mode",
+        temperature: float = 1.0,
     ) -> Prediction:
         """The mu of a fresh image of the true next macrostate (or its mean latent); no
         disagreement."""
@@ -80,8 +81,10 @@ class SplitModel:
         self.state_from, self.reward_from = state_from, reward_from
         self.end_from = reward_from if end_from is None else end_from
 
-    def predict(self, z, action, generators=(), draw: str = "mode") -> Prediction:
-        return self.state_from.predict(z, action, generators, draw)
+    def predict(
+        self, z, action, generators=(), draw: str = "mode", temperature: float = 1.0
+    ) -> Prediction:
+        return self.state_from.predict(z, action, generators, draw, temperature)
 
     def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
         return self.end_from.is_terminal(z)

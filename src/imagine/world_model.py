@@ -73,10 +73,17 @@ def mixture_from_heads(
 
 
 def sample_mixture(
-    m: Mixture, generator: torch.Generator, component: str = "weights"
+    m: Mixture, generator: torch.Generator, component: str = "weights", temperature: float = 1.0
 ) -> torch.Tensor:
     """One draw per row of mixtures (N, ...): a component from the weights (or, with
-    ``component="heaviest"``, the heaviest one), then a draw from its Gaussian."""
+    ``component="heaviest"``, the heaviest one), then a draw from its Gaussian. A
+    ``temperature`` tau other than 1 draws from the tempered mixture of World Models (Ha and
+    Schmidhuber 2018): weights proportional to pi_k^(1/tau), scales sigma_k sqrt(tau); tau -> 0
+    approaches the mode, tau = 1 is the mixture itself (and the same draws)."""
+    if temperature != 1.0:
+        m = Mixture(
+            torch.log_softmax(m.log_pi / temperature, -1), m.mu, m.sigma * math.sqrt(temperature)
+        )
     if component == "heaviest":
         k = m.log_pi.argmax(-1, keepdim=True)  # (N, 1)
     else:
@@ -131,10 +138,15 @@ class MDN(nn.Module):
 
     @torch.no_grad()
     def sample(
-        self, z: torch.Tensor, action: torch.Tensor, generator: torch.Generator
+        self,
+        z: torch.Tensor,
+        action: torch.Tensor,
+        generator: torch.Generator,
+        temperature: float = 1.0,
     ) -> torch.Tensor:
-        """Draw z_{t+1}: a component from the weights, then from its Gaussian."""
-        return sample_mixture(self(z, action), generator)
+        """Draw z_{t+1}: a component from the weights, then from its Gaussian (at
+        ``temperature``, :func:`sample_mixture`)."""
+        return sample_mixture(self(z, action), generator, temperature=temperature)
 
     @torch.no_grad()
     def most_likely(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -372,15 +384,17 @@ class PopulationWorldModel(nn.Module):
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None],
         draw: str = "sample",
+        temperature: float = 1.0,
     ) -> Prediction:
         """The next state of rows (P, N, D) for each agent with a generator (zeros for the
         others, with ``sample`` and ``component``), as imagination draws it: a sample of M's
         mixture, its ``mode``, or a draw from its heaviest component's Gaussian
-        (``component``); with K > 1 members, each row from the member drawn for it
-        (:meth:`_draw_members`). With the members' disagreement about the row."""
+        (``component``), draws at ``temperature`` (:func:`sample_mixture`); with K > 1
+        members, each row from the member drawn for it (:meth:`_draw_members`). With the
+        members' disagreement about the row."""
         if self.ensemble == 1:
             next_z = self._mode_one(z, action) if draw == "mode" else self._sample_one(
-                z, action, generators, draw)  # fmt: skip
+                z, action, generators, draw, temperature)  # fmt: skip
             return Prediction(next_z, torch.zeros(z.shape[:-1], device=z.device))
         P, N, D = z.shape
         zs, actions = self._each_member(z), self._each_member(action)
@@ -397,7 +411,7 @@ class PopulationWorldModel(nn.Module):
                 if generator is not None:
                     chosen = [h[i, member[i], rows] for h in per_member]
                     next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator,
-                                               _COMPONENT[draw])  # fmt: skip
+                                               _COMPONENT[draw], temperature)  # fmt: skip
         return Prediction(next_z, members_spread(modes))
 
     @torch.no_grad()
@@ -427,6 +441,7 @@ class PopulationWorldModel(nn.Module):
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None],
         draw: str = "sample",
+        temperature: float = 1.0,
     ) -> torch.Tensor:
         """:meth:`sample` of a one-member M. The mixture is formed agent by agent: softplus
         rounds some elements differently at a tensor's end, so one agent's few rows must be a
@@ -436,7 +451,7 @@ class PopulationWorldModel(nn.Module):
         for i, generator in enumerate(generators):
             if generator is not None:
                 out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
-                                        _COMPONENT[draw])  # fmt: skip
+                                        _COMPONENT[draw], temperature)  # fmt: skip
         return out
 
     def _mode_one(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
