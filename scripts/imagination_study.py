@@ -248,6 +248,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "imagination_draw": "sample", "imagination_temperature": 0.25},
     ),
+    # value expansion (issue 16): M in C's targets, beside or instead of imagined transitions
+    "augmented, as s44, C's targets expanded 2 steps through M": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "value_expansion": 2},
+    ),
+    "augmented, as s44, C's targets expanded 2 steps through M, no imagined transitions": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "value_expansion": 2, "n_imaginary_updates": 0},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

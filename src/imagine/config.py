@@ -280,6 +280,12 @@ class AgentConfig:
     then its Gaussian; the paper), mode (the mean of the heaviest component) or component (a
     draw from the heaviest component's Gaussian: M's most likely next macrostate with the
     spread of its images, as a real step draws new fragments)."""
+    value_expansion: int = 0
+    """H: C's targets for real transitions look H steps further through M from I_start on
+    (model-based value expansion, Feinberg et al. 2018; :mod:`imagine.value_expansion`): C's
+    greedy actions, M's most likely next states, r and d, then Q' bootstraps. 0: equation 1
+    (the paper). Augmented only; beside imagination, which ``n_imaginary_updates: 0`` turns
+    off."""
     imagination_temperature: float = 1.0
     """tau of imagination's draws (``imagination_draw`` sample or component): weights
     proportional to pi^(1/tau) and scales sigma sqrt(tau), World Models' temperature. 1: M's
@@ -442,6 +448,10 @@ class AgentConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
+        if self.value_expansion and self.method != "augmented":
+            raise ConfigError("agent.value_expansion needs M: it is for method augmented")
+        if not 0 <= self.value_expansion <= 3:
+            raise ConfigError(f"agent.value_expansion must be 0 to 3, got {self.value_expansion}")
         for name in ("model_updates", "reward_updates", "n_real_updates", "n_imaginary_updates",
                      "target_update_period", "imagination_start", "seed"):  # fmt: skip
             if getattr(self, name) < 0:

@@ -105,21 +105,27 @@ class PopulationController(nn.Module):
         self, reward: torch.Tensor, next_z: torch.Tensor, done: torch.Tensor
     ) -> torch.Tensor:
         """y = r + gamma * (1 - d) * Q'(s', argmax) (equation 1)."""
+        return reward + self.gamma * (1.0 - done) * self.bootstrap_value(next_z)
+
+    @torch.no_grad()
+    def bootstrap_value(self, z: torch.Tensor) -> torch.Tensor:
+        """Q'(z, argmax): the value a target bootstraps with, (P, B): the target network's
+        (or the online one's) max, or with double DQN its value of the online argmax."""
         bootstrap_net = self.target if self.target is not None else self.q
         if self.double_dqn:
-            best = self.q(next_z).argmax(-1, keepdim=True)
-            next_q = bootstrap_net(next_z).gather(-1, best).squeeze(-1)
-        else:
-            next_q = bootstrap_net(next_z).max(-1).values
-        return reward + self.gamma * (1.0 - done) * next_q
+            best = self.q(z).argmax(-1, keepdim=True)
+            return bootstrap_net(z).gather(-1, best).squeeze(-1)
+        return bootstrap_net(z).max(-1).values
 
     def update(
         self, z: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
         next_z: torch.Tensor, done: torch.Tensor, agents: Sequence[int],
+        target: torch.Tensor | None = None,
     ) -> torch.Tensor:  # fmt: skip
         """One Adam step of each agent in ``agents`` on its mean squared TD error (equation 2)
-        over its batch (P, B, ...); returns every agent's loss (P,)."""
-        y = self.td_target(reward, next_z, done)
+        over its batch (P, B, ...); returns every agent's loss (P,). ``target``: y given
+        (value expansion) instead of equation 1's."""
+        y = self.td_target(reward, next_z, done) if target is None else target
         q = self.q(z).gather(-1, action.unsqueeze(-1)).squeeze(-1)
         loss = (q - y).square().mean(-1)
         self.optimizer.zero_grad()

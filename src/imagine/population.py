@@ -56,6 +56,7 @@ from imagine.imagination import imagine_rollouts, posterior_scale
 from imagine.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.stacked import agent_normal, export_agent, import_agent, set_matmul_dtype
 from imagine.true_model import SplitModel, TrueLatentModel
+from imagine.value_expansion import expanded_target
 from imagine.world_model import PopulationWorldModel, WorldModel
 
 FORMAT = "imagine-agent-3"
@@ -237,10 +238,21 @@ class Population:
             return
         gens = [g if i in agents else None for i, g in enumerate(self.generators)]
         rows = torch.as_tensor(agents, device=self.device)
+        c = self.config
+        expanding = [
+            i for i in agents if c.value_expansion and self.episode[i] >= c.imagination_start
+        ]
         for _ in range(updates):
-            b = self.real.sample(self.config.real_batch, gens)
+            b = self.real.sample(c.real_batch, gens)
             z, next_z = self._controller_states(b, gens)
-            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], agents)
+            target = None
+            if expanding:  # value expansion through M from I_start on, equation 1 before
+                target = self.controller.td_target(b["reward"], next_z, b["done"])
+                expanded = expanded_target(self.controller, self.model, b["reward"], next_z,
+                                           b["done"], c.value_expansion)  # fmt: skip
+                target[expanding] = expanded[expanding]
+            loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], agents,
+                                          target)  # fmt: skip
             self._record(key, loss, rows)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
