@@ -587,6 +587,9 @@ def reproduce_study(
         vae_run=None if vae is None else str(vae), oracle=oracle, separate_runs=separate_runs,
         overrides=parse_assignments(set_ or []), device=device,
     )  # fmt: skip
+    if len(config.seeds) == 1 and config.seeds[0] > 1:  # `--seeds 5` once meant five seeds
+        console.print(f"note: --seeds {seeds} is seed {config.seeds[0]} alone; five seeds are "
+                      "--seeds 0-4")  # fmt: skip
     start = time.perf_counter()
     runs_per_budget = len(config.tasks) * 2 * len(config.seeds)
     total = runs_per_budget * (len(config.budgets) if separate_runs else 1)
