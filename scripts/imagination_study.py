@@ -257,6 +257,19 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "value_expansion": 2, "n_imaginary_updates": 0},
     ),
+    # a stochastic human (issue 16): the hand moves with probability 0.3 after each action
+    "baseline, a stochastic human (hand_switch_prob 0.3)": (
+        "baseline",
+        {"hand_switch_prob": 0.3},
+    ),
+    "augmented, as s44, a stochastic human (hand_switch_prob 0.3)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "hand_switch_prob": 0.3},
+    ),
+    "augmented, as s44, a stochastic human (0.3), a one-component M (the control)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "hand_switch_prob": 0.3, "n_components": 1},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
@@ -348,6 +361,13 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
             cells.append(
                 cell(accs) + (f" (at its temperature {cell(tempered)})" if tempered else "")
             )
+            variation = [
+                r["hand_calibration"]["total_variation"]
+                for r in rows
+                if r["task"] == t and r["budget"] == last and "hand_calibration" in r
+            ]
+            if variation:  # a stochastic human: M's hand probabilities against the truth
+                cells[-1] += f" (hand probabilities off by {cell(variation)}%, total variation)"
         for t in tasks:
             found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
             both = [cell([x[k] for x in found]) for k in ("state", "reward")]

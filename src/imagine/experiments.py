@@ -172,7 +172,7 @@ def job_config(job: Job, budget: int):
 def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | None]:
     """Train ``jobs`` to ``budget`` episodes (resuming) and evaluate each, unless its
     evaluation is there already; each job's error or None."""
-    from imagine.evaluate import greedy_success, model_accuracy
+    from imagine.evaluate import greedy_success, hand_calibration, model_accuracy
     from imagine.training import train_population
 
     todo = [job for job in jobs if not job.evaluation_path(budget).is_file()]
@@ -197,6 +197,9 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
         evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
                       "budget": budget, "time_steps": agent.t, **evaluation,
                       "model_accuracy": accuracy}  # fmt: skip
+        if accuracy is not None and p > 0:  # a stochastic human: M's hand probabilities
+            evaluation["hand_calibration"] = hand_calibration(agent.model, agent.encoder,
+                                                              job.task, p)  # fmt: skip
         evaluation |= studies_of_m(job, agent, budget)
         write_json(job.evaluation_path(budget), evaluation)
     return [errors.get(job.name) for job in jobs]
