@@ -35,7 +35,9 @@ def random_agent_success(task: str, episodes: int = 2000) -> float:
     return float(success.mean())
 
 
-@pytest.mark.parametrize("matmul_dtype", ["float32", "bfloat16"])
+@pytest.mark.parametrize(
+    "matmul_dtype", ["float32", pytest.param("bfloat16", marks=pytest.mark.slow)]
+)
 def test_smoke_agent_with_the_oracle_learns_well_above_random(tmp_path, matmul_dtype):
     """Q-learning (and M) with bfloat16 products learns as with float32 (issue 18)."""
     torch.manual_seed(0)
@@ -158,7 +160,7 @@ def test_an_agent_trains_and_is_evaluated_with_a_stochastic_human(tmp_path):
     then counts a draw with a moved hand as possible and says how often M keeps the hand."""
     run = tmp_path / "stochastic"
     done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
-                           "--episodes", "100", "--set", "imagination_start=50",
+                           "--episodes", "60", "--set", "imagination_start=30",
                            "--set", "hand_switch_prob=0.3"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -245,12 +247,13 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     assert done.returncode == 0, done.stderr
     base = tmp_path / "base"
     train(dataclasses.replace(config, method="baseline", episodes=5), base, threads=1)
-    for folder, words in ((base, "baseline run"), (tmp_path / "none", "holds no agent run")):
-        done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--init-from", str(folder),
-                               "--preset", "smoke", "--oracle", "--episodes", "40",
-                               "--set", "imagination_start=20"],
-                              capture_output=True, text=True, check=False)  # fmt: skip
-        assert done.returncode == 2 and words in done.stderr, done.stderr
+    with pytest.raises(ConfigError, match="baseline run"):
+        dynamics_source(dataclasses.replace(hard, init_from=str(base)))
+    done = subprocess.run([IMAGINE, "train", str(tmp_path / "x"), "--init-from",
+                           str(tmp_path / "none"), "--preset", "smoke", "--oracle",
+                           "--episodes", "40", "--set", "imagination_start=20"],
+                          capture_output=True, text=True, check=False)  # fmt: skip
+    assert done.returncode == 2 and "holds no agent run" in done.stderr, done.stderr
     with pytest.raises(ConfigError, match="encoder"):
         dynamics_source(dataclasses.replace(hard, encoder="vae", vae_run="somewhere"))
 

@@ -172,9 +172,17 @@ def bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
 
 
 def test_every_bad_input_gets_one_line_and_exit_2(tmp_path):
-    for args, words in bad_inputs(tmp_path):
-        done = subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False,
+    from concurrent.futures import ThreadPoolExecutor
+
+    cases = bad_inputs(tmp_path)
+
+    def run(args):
+        return subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False,
                               cwd=tmp_path)  # fmt: skip
+
+    with ThreadPoolExecutor(max_workers=2) as pool:  # two commands at a time: two cores
+        results = list(pool.map(run, [args for args, _ in cases]))
+    for (args, words), done in zip(cases, results, strict=True):
         lines = done.stderr.strip().splitlines()
         assert done.returncode == 2, (args, done.stderr)
         assert len(lines) == 1 and lines[0].startswith("error:"), (args, done.stderr)
