@@ -32,17 +32,25 @@ from typing import Any
 import numpy as np
 import torch
 
+from imagine import ENV_ID
 from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json
 from imagine.config import AgentConfig, from_dict
 from imagine.controller import Controller
 from imagine.encoder import OracleEncoder, StandardizedEncoder, VaeEncoder
+from imagine.encoders import OneHotEncoder, VectorEncoder
 from imagine.env import make_composer
+from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError, NumericalError
 from imagine.world_model import WorldModel
 
 
 def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
-    """What C and M see: ``config.encoder``, in ``config.latent_space``."""
+    """What C and M see: ``config.encoder``, in ``config.latent_space``; for an environment
+    other than GesturePuzzle, the encoder its observation space calls for."""
+    if config.env != ENV_ID:
+        return generic_encoder(config)
+    if config.encoder not in ("vae", "oracle"):
+        raise ConfigError(f"agent.encoder {config.encoder} is not for {ENV_ID}: use vae or oracle")
     if config.encoder == "oracle":
         encoder = OracleEncoder(sigma=config.oracle_sigma)
     elif config.vae_run is None:
@@ -52,6 +60,27 @@ def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
     else:
         encoder = VaeEncoder(config.vae_run, make_composer(), device=device)
     return StandardizedEncoder(encoder) if config.latent_space == "standardized" else encoder
+
+
+ENCODER_OF_KIND = {"vector": "vector", "discrete": "onehot", "image": "vae"}
+"""The encoder each kind of observation (:func:`imagine.envs.gym.observation_kind`) needs."""
+
+
+def generic_encoder(config: AgentConfig):
+    """The encoder of a Gymnasium environment's observations (:mod:`imagine.encoders`)."""
+    spec = make_spec(config)
+    needed = ENCODER_OF_KIND[spec.kind]
+    if config.encoder != needed:
+        raise ConfigError(
+            f"{config.env} has {spec.kind} observations: set agent.encoder={needed} "
+            f"(got {config.encoder})"
+        )
+    if needed == "vae":
+        raise ConfigError(f"{config.env}: image observations through V are not supported yet")
+    if config.latent_space != "posterior":
+        raise ConfigError("agent.latent_space=standardized is for V's latent (GesturePuzzle)")
+    space = spec.observation_space
+    return VectorEncoder(space.shape[0]) if needed == "vector" else OneHotEncoder(space.n)
 
 
 @dataclasses.dataclass
@@ -82,11 +111,12 @@ class Agent:
         rng: np.random.Generator | None = None,
     ) -> np.ndarray:
         """C's actions for observations: uint8 images (N, 64, 64, 3), or one (64, 64, 3) for
-        one action. Greedy (argmax_a Q(mu, a) with mu from the encoder), or with ``epsilon``
-        a uniform random action that often, drawn from ``rng``. ``macrostates`` (N, 4) only
-        for the oracle encoder, which reads the true state instead of the image."""
+        one action (another environment's: a batch of its observations, or one). Greedy
+        (argmax_a Q(mu, a) with mu from the encoder), or with ``epsilon`` a uniform random
+        action that often, drawn from ``rng``. ``macrostates`` (N, 4) only for the oracle
+        encoder, which reads the true state instead of the image."""
         images = np.asarray(observations)
-        one = images.ndim == 3
+        one = images.ndim == getattr(self.encoder, "observation_ndim", 3)
         if one:
             images = images[None]
             macrostates = None if macrostates is None else np.asarray(macrostates)[None]
@@ -105,7 +135,8 @@ class Agent:
 def greedy_actions(
     controller: Controller, encoder, images: np.ndarray, states: np.ndarray | None
 ) -> np.ndarray:
-    """argmax_a Q(mu, a) for images (N, 64, 64, 3), mu from the encoder: int64 (N,)."""
+    """argmax_a Q(mu, a) for a batch of observations (images (N, 64, 64, 3) for GesturePuzzle),
+    mu from the encoder: int64 (N,)."""
     mu, _ = encoder.encode(images, states)
     device = next(controller.parameters()).device
     was_training = controller.training
@@ -125,9 +156,10 @@ def saved_config(folder: Path) -> AgentConfig | None:
 
 def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
     """The config of the run already in ``folder`` (None if there is none); an error if it is
-    another run's (only the episode budget may differ)."""
+    another run's (only the budgets, episodes and steps, may differ)."""
     saved = saved_config(folder)
-    if saved is not None and dataclasses.replace(saved, episodes=config.episodes) != config:
+    budget = {"episodes": config.episodes, "steps": config.steps}
+    if saved is not None and dataclasses.replace(saved, **budget) != config:
         raise CheckpointError(
             f"{folder} holds a run with another config; use a new folder or the same settings"
         )
@@ -147,7 +179,7 @@ def train(
     from imagine.training import train_population
 
     result = train_population(
-        [config], [folder], None if on_episode is None else lambda i, e: on_episode(e),
+        [config], [folder], None if on_episode is None else lambda i, e, t: on_episode(e),
         threads=threads, encoder=encoder, device=device,
     )  # fmt: skip
     if result.failures:
@@ -167,7 +199,8 @@ def load_agent(folder: str | Path) -> Agent:
     if meta.get("format") not in READABLE_FORMATS:
         raise CheckpointError(f"{folder / 'agent.json'} is not an agent checkpoint of this version")
     encoder = make_encoder(config)
-    controller, model = new_networks(config, encoder.latent_dim)
+    n_actions = make_spec(config).n_actions
+    controller, model = new_networks(config, encoder.latent_dim, n_actions)
     tensors = load_tensors(folder / "agent.safetensors", "agent checkpoint")
     where = str(folder / "agent.safetensors")
     load_state_dict_strict(controller, part(tensors, "controller"), where)

@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from imagine import ENV_ID
 from imagine.errors import ImagineError
 
 app = typer.Typer(
@@ -287,6 +288,22 @@ def with_options(overrides: dict[str, Any], given: dict[str, tuple[str, Any]]) -
     return merged
 
 
+UNBOUNDED_EPISODES = 1_000_000_000
+"""The episode budget of a run given only a step budget (``--steps``)."""
+
+
+def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
+    """For an environment other than GesturePuzzle with no encoder chosen: the one its
+    observation space calls for (:data:`imagine.agent.ENCODER_OF_KIND`)."""
+    from imagine.agent import ENCODER_OF_KIND
+    from imagine.envs.gym import GymSpec
+
+    env = values.get("env", ENV_ID)
+    if env == ENV_ID or "encoder" in values:
+        return values
+    return {**values, "encoder": ENCODER_OF_KIND[GymSpec(env, values.get("wrappers", [])).kind]}
+
+
 @app.command("train")
 def train_agent(
     out: Annotated[
@@ -297,6 +314,24 @@ def train_agent(
         MethodName | None, typer.Option(help="Algorithm 1 with or without M (default: augmented).")
     ] = None,
     episodes: Annotated[int | None, typer.Option(help="Training episodes.")] = None,
+    steps: Annotated[
+        int | None,
+        typer.Option(help="A budget of real time steps (alone: no episode budget)."),
+    ] = None,
+    env: Annotated[
+        str | None,
+        typer.Option(
+            metavar="ENV_ID",
+            help="Any registered Gymnasium environment with Discrete actions, as "
+            "gymnasium.make takes it (module:Id included; default: GesturePuzzle).",
+        ),
+    ] = None,
+    wrapper: Annotated[
+        list[str] | None,
+        typer.Option(
+            metavar="MODULE:CLASS", help="A Gymnasium wrapper for --env (repeat: in order)."
+        ),
+    ] = None,
     seed: Annotated[int | None, typer.Option(help="Seed of everything random (default 0).")] = None,
     seeds: Annotated[
         str | None,
@@ -330,7 +365,8 @@ def train_agent(
     """Train one agent with Algorithm 1 (paper section V-B), or several in lockstep.
 
     Writes its config, metrics (CSV and TensorBoard) and checkpoints into OUT; run it again to
-    resume. A field set both by an option and by --set or --config must agree."""
+    resume. A field set both by an option and by --set or --config must agree. With --env, the
+    encoder follows the observations: vectors as they are, Discrete as one-hot."""
     import dataclasses
 
     from imagine.agent import check_folder, make_encoder
@@ -352,11 +388,18 @@ def train_agent(
         "method": ("--method", None if method is None else method.value),
         "seed": ("--seed", seed),
         "episodes": ("--episodes", episodes),
+        "steps": ("--steps", steps),
+        "env": ("--env", env),
+        "wrappers": ("--wrapper", wrapper or None),
         "encoder": ("--oracle", None if oracle is None else "oracle" if oracle else "vae"),
         "vae_run": ("--vae", None if vae is None else str(vae)),
         "init_from": ("--init-from", None if init_from is None else str(init_from)),
     }
-    config = check_imagines(agent_preset(preset, **with_options(overrides, given)))
+    values = with_options(overrides, given)
+    if "steps" in values and "episodes" not in values:
+        values["episodes"] = UNBOUNDED_EPISODES
+    values = with_encoder_of_env(values)
+    config = check_imagines(agent_preset(preset, **values))
     if seeds is None:
         configs, folders = [config], [out]
     else:
@@ -369,13 +412,16 @@ def train_agent(
     encoder = make_encoder(config, torch_device)
     start = time.perf_counter()
     label = f"seed {config.seed}" if seeds is None else f"seeds {seeds}"
+    what = config.task if config.env == ENV_ID else config.env
+    by_steps = config.steps > 0 and config.episodes == UNBOUNDED_EPISODES
     done = [0] * len(configs)
-    with Progress(TextColumn(f"{config.method} {config.task} {label}"), BarColumn(),
+    with Progress(TextColumn(f"{config.method} {what} {label}"), BarColumn(),
                   MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
-        task_id = bar.add_task("episodes", total=config.episodes * len(configs))
+        budget = config.steps if by_steps else config.episodes
+        task_id = bar.add_task("budget", total=budget * len(configs))
 
-        def on_episode(i: int, episode: int) -> None:
-            done[i] = episode
+        def on_episode(i: int, episode: int, t: int) -> None:
+            done[i] = min(t, budget) if by_steps else episode
             bar.update(task_id, completed=sum(done))
 
         result = train_population(configs, folders, on_episode, threads=threads,
@@ -416,6 +462,9 @@ def evaluate_agent(
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
+    if agent.config.env != ENV_ID:
+        evaluate_any(run, agent, n, seed)
+        return
     p = agent.config.hand_switch_prob
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
                             hand_switch_prob=p)  # fmt: skip
@@ -481,6 +530,28 @@ def evaluate_agent(
               f"{agent.config.imagination_gate_scale}: threshold {{gate_threshold:.3f}}, accepts "
               "{accepted:.1%}; state right in the accepted {state_accepted:.1%}, in the rejected "
               "{state_rejected:.1%}".format(**imagined))  # fmt: skip
+
+
+def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
+    """``imagine evaluate`` for an environment other than GesturePuzzle: greedy test episodes'
+    mean return (and success where the environment reports it) into RUN/evaluation.json."""
+    from imagine.checkpoint import write_json
+    from imagine.envs.spec import make_spec
+    from imagine.test_episodes import greedy_policy, run_episodes
+
+    spec = make_spec(agent.config)
+    result = run_episodes(spec, greedy_policy(agent.controller, agent.encoder), episodes, seed)
+    write_json(run / "evaluation.json", {"after_episodes": agent.episode, "after_steps": agent.t,
+                                         **result})  # fmt: skip
+    print(f"{run}: {agent.config.method}, {agent.config.env}, after {agent.t} time steps "
+          f"({agent.episode} episodes)")  # fmt: skip
+    print(
+        "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f}), "
+        "mean length {mean_length:.1f}, {episodes} greedy episodes".format(**result)
+    )
+    if "success" in result:
+        print(f"success {100 * result['success']:.1f}% (95% CI {100 * result['ci_low']:.1f}-"
+              f"{100 * result['ci_high']:.1f}%)")  # fmt: skip
 
 
 @app.command("plan")

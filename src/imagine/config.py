@@ -32,6 +32,9 @@ REWARD_LOSSES = ("logcosh", "mse")
 """The choices of ``AgentConfig.reward_loss`` (:data:`imagine.world_model.REWARD_LOSSES`)."""
 UNCERTAINTIES = ("disagreement", "support")
 """The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
+ENCODERS = ("vae", "oracle", "vector", "onehot")
+"""vae: V (images); oracle: GesturePuzzle's true state; vector and onehot: an observation that
+needs no V (:mod:`imagine.encoders`)."""
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,11 @@ class AgentConfig:
 
     Where the paper is silent the DESIGN.md choice is the default and a field."""
 
+    env: str = "imagine/GesturePuzzle-v0"
+    """The environment, as ``gymnasium.make`` takes it (``module:Id`` included): the paper's
+    GesturePuzzle, or any registered one with a Discrete action space (:mod:`imagine.envs`)."""
+    wrappers: list[str] = dataclasses.field(default_factory=list)
+    """Gymnasium wrappers (``module:Class``) applied in order to each copy of ``env``."""
     task: str = "original"
     """GesturePuzzle task: original or hard."""
     init_from: str | None = None
@@ -237,11 +245,15 @@ class AgentConfig:
     """baseline (real transitions only) or augmented (plus imaginary ones from episode I_start)."""
     episodes: int = 2000
     """Training episodes (the paper's budgets are 2000..6000)."""
+    steps: int = 0
+    """A budget of real time steps as well (0: none): the agent stops at whichever budget it
+    reaches first; the episode running when it reaches ``steps`` ends there (truncated)."""
     seed: int = 0
     """Seed of the networks, the environment and every random draw."""
     encoder: str = "vae"
     """vae: V's latent; oracle: a fixed random embedding of the true macrostate (studies M and C
-    apart from vision)."""
+    apart from vision); vector: a 1-D Box observation as it is; onehot: a Discrete observation
+    as its one-hot vector (`imagine train --env` picks these from the observation space)."""
     vae_run: str | None = None
     """V run folder (from `imagine vae train`) for encoder=vae."""
     oracle_sigma: float = 0.05
@@ -425,7 +437,7 @@ class AgentConfig:
         from imagine.env.rules import TASKS
 
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
-                   "encoder": ("vae", "oracle"),
+                   "encoder": ENCODERS,
                    "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode", "component"),
@@ -452,8 +464,12 @@ class AgentConfig:
             raise ConfigError("agent.value_expansion needs M: it is for method augmented")
         if not 0 <= self.value_expansion <= 3:
             raise ConfigError(f"agent.value_expansion must be 0 to 3, got {self.value_expansion}")
+        if not (isinstance(self.wrappers, list) and all(isinstance(w, str) for w in self.wrappers)):
+            raise ConfigError(
+                f"agent.wrappers must be a list of module:Class names, got {self.wrappers!r}"
+            )
         for name in ("model_updates", "reward_updates", "n_real_updates", "n_imaginary_updates",
-                     "target_update_period", "imagination_start", "seed"):  # fmt: skip
+                     "target_update_period", "imagination_start", "seed", "steps"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
         if self.real_in_place_of_imagined and self.method != "baseline":

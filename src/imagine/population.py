@@ -25,13 +25,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
-from gymnasium.vector import AutoresetMode
 
 from imagine.checkpoint import (
     load_state_dict_strict,
@@ -42,8 +40,7 @@ from imagine.checkpoint import (
 )
 from imagine.config import AgentConfig
 from imagine.controller import Controller, PopulationController, epsilon
-from imagine.env.rules import N_ACTIONS, REWARD_GOAL
-from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.envs.spec import EnvSpec, make_spec
 from imagine.errors import CheckpointError, ConfigError
 from imagine.gate import (
     TRUST_RECENT,
@@ -72,11 +69,14 @@ NETWORK_OF = {
 }
 
 
-def new_networks(config: AgentConfig, latent_dim: int) -> tuple[Controller, WorldModel]:
+def new_networks(
+    config: AgentConfig, latent_dim: int, n_actions: int = 6
+) -> tuple[Controller, WorldModel]:
     """One agent's freshly initialized C and M (seeded with its seed)."""
     torch.manual_seed(config.seed)
-    controller = Controller(latent_dim)
-    model = WorldModel(latent_dim, n_components=config.n_components, dropout=config.dropout,
+    controller = Controller(latent_dim, n_actions)
+    model = WorldModel(latent_dim, n_actions, n_components=config.n_components,
+                       dropout=config.dropout,
                        reward_hidden=config.reward_hidden,
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,
@@ -98,16 +98,22 @@ class Population:
     """C, M, memories, environments and random streams of P runs of Algorithm 1."""
 
     def __init__(
-        self, configs: Sequence[AgentConfig], encoder, device: str | torch.device = "cpu"
+        self,
+        configs: Sequence[AgentConfig],
+        encoder,
+        device: str | torch.device = "cpu",
+        spec: EnvSpec | None = None,
     ) -> None:
         check_population(configs)
         self.configs = list(configs)
         self.config = c = configs[0]
         self.encoder = encoder
+        self.spec = spec if spec is not None else make_spec(c)
+        self.n_actions = self.spec.n_actions
         self.device = torch.device(device)
         self.size = P = len(configs)
         d = encoder.latent_dim
-        networks = [new_networks(config, d) for config in configs]
+        networks = [new_networks(config, d, self.n_actions) for config in configs]
         self.controller = PopulationController(
             [n[0].to(self.device) for n in networks], lr=c.controller_lr, gamma=c.gamma,
             target_update_period=c.target_update_period, double_dqn=c.double_dqn,
@@ -122,10 +128,14 @@ class Population:
         self.imaginary = ReplayMemory(c.imaginary_memory, imaginary_fields(d), P, self.device)
         self.trust = ModelTrust(c, P, self.device)
         self.generators = [torch.Generator(self.device).manual_seed(x.seed) for x in configs]
-        self.envs = GesturePuzzleVectorEnv(P, task=c.task, autoreset_mode=AutoresetMode.DISABLED,
-                                           hand_switch_prob=c.hand_switch_prob)  # fmt: skip
+        self.envs = self.spec.make_vector_env(P)
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
         if c.imagination_model != "learned":
+            if not hasattr(self.envs, "composer"):
+                raise ConfigError(
+                    f"agent.imagination_model {c.imagination_model} imagines with GesturePuzzle's "
+                    f"rules; {self.spec.env_id} has none"
+                )
             rules = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
                                     fresh=c.imagination_model == "true")  # fmt: skip
             self.imagined_by = {"true_reward": SplitModel(self.model, rules),
@@ -133,6 +143,7 @@ class Population:
                                 "true_state": SplitModel(rules, self.model)}.get(
                                     c.imagination_model, rules)  # fmt: skip
         self.envs.reset(seed=[x.seed for x in configs])
+        self._env_done = np.zeros(P, dtype=bool)  # an env to reset before it steps again
         self.episode = [0] * P  # episodes finished
         self.t = [0] * P  # real time steps taken
         self.active = [True] * P
@@ -149,6 +160,11 @@ class Population:
         c = self.config
         t = self.t[agent] if c.eps_time == "step" else self.episode[agent]
         return epsilon(t, c.eps_min, c.eps_max, c.eps_decay)
+
+    def finished(self, agent: int) -> bool:
+        """Whether an agent has reached its budget (episodes, or real time steps)."""
+        c = self.configs[agent]
+        return self.episode[agent] >= c.episodes or 0 < c.steps <= self.t[agent]
 
     def stop(self, agent: int) -> None:
         """Take an agent out of the lockstep (budget reached, stopped or failed)."""
@@ -169,7 +185,9 @@ class Population:
         eps = [self.epsilon(i) for i in range(self.size)]
         action = self.controller.act(self.mu.unsqueeze(1), eps, gens)[:, 0]
         obs, reward, terminated, truncated, info = self.envs.step(action.cpu().numpy())
-        next_mu, next_sigma = self._encode(live, obs, info["macrostate"])
+        self._env_done |= terminated | truncated
+        won = self.spec.success(reward, info)
+        next_mu, next_sigma = self._encode(live, *self.spec.encoder_input(obs, info))
         self.real.add_each(
             live, mu=self.mu[rows], sigma=self.sigma[rows], action=action[rows],
             next_mu=next_mu, next_sigma=next_sigma,
@@ -194,9 +212,10 @@ class Population:
         ended = []
         for i in live:
             totals = self._episode[i]
-            totals.add(float(reward[i]), eps[i])
+            totals.add(float(reward[i]), eps[i], None if won is None else bool(won[i]))
             self.t[i] += 1
-            if terminated[i] or truncated[i]:
+            out_of_steps = 0 < self.configs[i].steps <= self.t[i]  # truncated by the budget
+            if terminated[i] or truncated[i] or out_of_steps:
                 self.episode[i] += 1
                 self._starting[i] = True
                 stats = self._end_episode(i)
@@ -205,22 +224,32 @@ class Population:
         return ended
 
     def _start_episodes(self) -> None:
+        """Reset the envs of the agents starting an episode (each seeded as its spec says), and
+        those of stopped agents that ended one (a vector env steps all its copies)."""
         starting = [i for i in range(self.size) if self.active[i] and self._starting[i]]
-        if not starting:
+        idle = [i for i in range(self.size) if not self.active[i] and self._env_done[i]]
+        if not starting and not idle:
             return
         mask = np.zeros(self.size, dtype=bool)
-        mask[starting] = True
-        obs, info = self.envs.reset(options={"reset_mask": mask})
+        mask[starting + idle] = True
+        seeds = [
+            self.spec.reset_seed(c.seed, e) for c, e in zip(self.configs, self.episode, strict=True)
+        ]
+        obs, info = self.envs.reset(seed=seeds, options={"reset_mask": mask})
+        self._env_done[mask] = False
+        if not starting:
+            return
         rows = torch.as_tensor(starting, device=self.device)
-        self.mu[rows], self.sigma[rows] = self._encode(starting, obs, info["macrostate"])
+        x, extra = self.spec.encoder_input(obs, info)
+        self.mu[rows], self.sigma[rows] = self._encode(starting, x, extra)
         for i in starting:
             self._starting[i] = False
             self._episode[i] = EpisodeTotals()
 
-    def _encode(
-        self, agents: list[int], obs: np.ndarray, states: np.ndarray
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        mu, sigma = self.encoder.encode(obs[agents], states[agents])
+    def _encode(self, agents: list[int], x, extra) -> tuple[torch.Tensor, torch.Tensor]:
+        """The encoder's posterior of the agents' observations (``x``, ``extra``: what the
+        spec's :meth:`~imagine.envs.spec.EnvSpec.encoder_input` reads from a step)."""
+        mu, sigma = self.encoder.encode(x[agents], None if extra is None else extra[agents])
         return mu.to(self.device), sigma.to(self.device)
 
     def _controller_states(
@@ -325,7 +354,7 @@ class Population:
         due = [i for i in agents if self.trust.due(i, self.t[i])]
         if due:  # one batched judgment of the whole population, kept for the agents due
             recent, held = self.real.newest_each(TRUST_RECENT)
-            right = one_step_right(self.model, recent, held, N_ACTIONS).tolist()
+            right = one_step_right(self.model, recent, held, self.n_actions).tolist()
             for i in due:
                 self.trust.judge(i, self.t[i], right[i])
         return {
@@ -399,11 +428,10 @@ class Population:
             tensors |= self.trust.state_dict("gate", agent)
         tensors["rng.generator"] = self.generators[agent].get_state()
         save_tensors(folder / "agent.safetensors", tensors)
-        state = self.envs._rng(agent).bit_generator.state
         write_json(folder / "agent.json", {
             "format": FORMAT, "episode": self.episode[agent], "t": self.t[agent],
             "controller_updates": int(self.controller.updates[agent]),
-            "env_rng": json.loads(json.dumps(state)),
+            "env_rng": self.spec.env_state(self.envs, agent),
             "config": dataclasses.asdict(self.configs[agent]), "window": window or {},
             "device": self.device.type,
         })  # fmt: skip
@@ -448,7 +476,7 @@ class Population:
         if self.trust.on:
             self.trust.load_state_dict(tensors, "gate", agent)
         self.generators[agent].set_state(tensors["rng.generator"])
-        self.envs._rng(agent).bit_generator.state = meta["env_rng"]
+        self.spec.set_env_state(self.envs, agent, meta["env_rng"])
         self.episode[agent], self.t[agent] = int(meta["episode"]), int(meta["t"])
         self.controller.updates[agent] = int(meta["controller_updates"])
         window = meta.get("window", {})
@@ -467,7 +495,8 @@ class EpisodeTotals:
 
     total: float = 0.0
     length: int = 0
-    success: bool = False
+    success: bool | None = None
+    """Whether the goal was reached (None: the environment does not say)."""
     imagined: int = 0
     """Transitions imagined, before any gate."""
     disagreement: float | None = None
@@ -476,10 +505,11 @@ class EpisodeTotals:
     """Imagined transitions a gate kept (None: no gate)."""
     eps: float = 0.0
 
-    def add(self, reward: float, eps: float) -> None:
+    def add(self, reward: float, eps: float, success: bool | None) -> None:
         self.total += reward
         self.length += 1
-        self.success |= reward == REWARD_GOAL
+        if success is not None:
+            self.success = bool(self.success) or success
         self.eps = eps
 
     def add_disagreement(self, total: float) -> None:
@@ -489,9 +519,11 @@ class EpisodeTotals:
         self.accepted = (self.accepted or 0) + n
 
     def stats(self) -> dict[str, float]:
-        out = {"charts/return": self.total, "charts/success": float(self.success),
-               "charts/episode_length": float(self.length), "charts/epsilon": self.eps,
-               "charts/imagined_transitions": float(self.imagined)}  # fmt: skip
+        out = {"charts/return": self.total}
+        if self.success is not None:  # the environment says when a goal is reached
+            out["charts/success"] = float(self.success)
+        out |= {"charts/episode_length": float(self.length), "charts/epsilon": self.eps,
+                "charts/imagined_transitions": float(self.imagined)}  # fmt: skip
         if self.disagreement is not None and self.imagined:
             out["charts/imagined_disagreement"] = self.disagreement / self.imagined
         if self.accepted is not None and self.imagined:

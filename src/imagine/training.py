@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import yaml
 
+from imagine import ENV_ID
 from imagine.agent import Agent, check_folder, make_encoder, saved_config
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
@@ -71,13 +72,14 @@ def dynamics_source(config: AgentConfig) -> Path:
 def train_population(
     configs: Sequence[AgentConfig],
     folders: Sequence[str | Path],
-    on_episode: Callable[[int, int], None] | None = None,
+    on_episode: Callable[[int, int, int], None] | None = None,
     threads: int | None = None,
     encoder: Any = None,
     device: str = "cpu",
 ) -> PopulationResult:
     """Train each ``configs[i]`` into ``folders[i]`` (resuming), all in one lockstep
-    population. ``on_episode(i, episode)`` is called after each of agent i's episodes."""
+    population. ``on_episode(i, episode, t)`` is called after each of agent i's episodes
+    (``t``: its real time steps so far)."""
     if threads is not None:
         torch.set_num_threads(threads)
     folders = [Path(f) for f in folders]
@@ -95,7 +97,7 @@ def train_population(
             population.start_dynamics_from(i, dynamics_source(config))
         atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
         loggers.append(MetricsLogger(folder, resume_step=population.episode[i]))
-        if population.episode[i] >= config.episodes:
+        if population.finished(i):
             population.stop(i)
     windows = [defaultdict(list, w) for w in population.saved_windows]
     failures: dict[int, str] = {}
@@ -106,7 +108,7 @@ def train_population(
                     windows[i][key].append(value)
                 _after_episode(population, i, folders[i], loggers[i], windows[i], stop.signal)
                 if on_episode is not None:
-                    on_episode(i, population.episode[i])
+                    on_episode(i, population.episode[i], population.t[i])
             for i, message in sorted(population.failures.items()):
                 failures[i] = f"{folders[i]}: {message}"
             population.failures.clear()
@@ -134,7 +136,8 @@ def _after_episode(
     """Agent i's episode just ended: accuracy, metrics row, checkpoint, stop at its budget."""
     config = population.configs[i]
     e = population.episode[i]
-    if population.config.trains_model and e % config.accuracy_every == 0:
+    probe = population.spec.env_id == ENV_ID  # M's accuracy over GesturePuzzle's 192 x 6
+    if probe and population.config.trains_model and e % config.accuracy_every == 0:
         _, model = population.networks(i)
         accuracy = model_accuracy(
             model, population.encoder, config.task, config.hand_switch_prob,
@@ -142,13 +145,13 @@ def _after_episode(
         )  # fmt: skip
         for key, value in accuracy.items():
             logger.record(f"model/{key}_accuracy", value)
-    if e % config.log_every == 0 or e == config.episodes:
+    if e % config.log_every == 0 or population.finished(i):
         for key, values in window.items():
             logger.record(key, float(np.mean(values)))
         logger.record("charts/time_steps", population.t[i])
         logger.dump(e)
         window.clear()
-    finished = e >= config.episodes
+    finished = population.finished(i)
     if e % config.checkpoint_every == 0 or finished or signal_number:
         population.save(i, folder, dict(window))
     if finished or signal_number:
