@@ -36,7 +36,8 @@ def run_episodes(
     success (Wilson 95% interval) when the environment reports it."""
     copies = min(copies, episodes)
     envs = spec.make_vector_env(copies)
-    returns, lengths, successes = [], [], []
+    returns, lengths = np.zeros(episodes), np.zeros(episodes)  # by test episode
+    successes = np.zeros(episodes, dtype=bool)
     reported = False
     episode_of = np.arange(copies)  # the test episode each copy runs (>= episodes: idle)
     seeds = [episode_seed(seed, int(k)) for k in episode_of]
@@ -60,9 +61,8 @@ def run_episodes(
         if not ended.any():
             continue
         done = np.flatnonzero(ended & (episode_of < episodes))
-        returns += total[done].tolist()
-        lengths += length[done].tolist()
-        successes += won[done].tolist()
+        k = episode_of[done]
+        returns[k], lengths[k], successes[k] = total[done], length[done], won[done]
         episode_of[done] = episode_of.max() + 1 + np.arange(len(done))
         seeds = [
             episode_seed(seed, int(k)) if e else None
@@ -72,13 +72,12 @@ def run_episodes(
         done = np.flatnonzero(ended)
         total[done], length[done], won[done] = 0.0, 0, False
     envs.close()
-    returns_array = np.asarray(returns)
-    low, high = mean_interval(returns_array)
-    out = {"mean_return": float(returns_array.mean()), "return_ci_low": low,
-           "return_ci_high": high, "mean_length": float(np.mean(lengths)),
+    low, high = mean_interval(returns)
+    out = {"mean_return": float(returns.mean()), "return_ci_low": low,
+           "return_ci_high": high, "mean_length": float(lengths.mean()),
            "episodes": episodes}  # fmt: skip
     if reported:
-        n = int(np.sum(successes))
+        n = int(successes.sum())
         s_low, s_high = wilson_interval(n, episodes)
         out |= {"success": n / episodes, "ci_low": s_low, "ci_high": s_high}
     return out
