@@ -111,3 +111,36 @@ def test_bad_wrapper_and_encoder(tmp_path):
 def test_wrappers_apply_in_order():
     spec = GymSpec(LINE, ["gymnasium.wrappers:FlattenObservation"])
     assert spec.kind == "vector" and spec.n_actions == 3
+
+
+def test_image_env_through_v_end_to_end(tmp_path):
+    """`imagine vae train --env` fits V on a random policy's frames (8 x 8 images resized to
+    64 x 64); `imagine train --env --vae` learns through it and beats random;
+    `imagine evaluate` writes the mean return and success."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from imagine.cli import app
+
+    env, runner = "imagine-test/LineImage-v0", CliRunner()
+    v = tmp_path / "v"
+    done = runner.invoke(app, ["vae", "train", "--env", env, "--out", str(v), "--preset", "smoke",
+                               "--set", "epochs=1", "--device", "cpu"])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    assert not (v / "classifier.safetensors").exists()  # macrostates are GesturePuzzle's
+    run = tmp_path / "agent"
+    done = runner.invoke(app, ["train", str(run), "--env", env, "--vae", str(v), "--steps", "300",
+                               "--method", "baseline", "--preset", "smoke", "--set", "gamma=0.9",
+                               "--set", "eps_time=episode", "--set", "eps_decay=0.1",
+                               "--device", "cpu"])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    done = runner.invoke(app, ["evaluate", str(run), "--episodes", "50"])
+    assert done.exit_code == 0, done.output
+    result = json.loads((run / "evaluation.json").read_text())
+    spec = make_spec(toy_config(env, "vae"))
+    random = run_episodes(spec, random_policy(spec.n_actions, 0), 50, seed=1_000_000)
+    assert result["success"] >= 0.9 and result["mean_return"] > random["mean_return"] + 1.0
+    wrong = runner.invoke(app, ["train", str(tmp_path / "b"), "--env", LINE, "--vae", str(v),
+                                "--set", "encoder=vae", "--steps", "10"])  # fmt: skip
+    assert wrong.exit_code != 0 and "vector observations" in str(wrong.exception)

@@ -37,7 +37,7 @@ from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json
 from imagine.config import AgentConfig, from_dict
 from imagine.controller import Controller
 from imagine.encoder import OracleEncoder, StandardizedEncoder, VaeEncoder
-from imagine.encoders import OneHotEncoder, VectorEncoder
+from imagine.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
 from imagine.env import make_composer
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError, NumericalError
@@ -48,7 +48,7 @@ def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
     """What C and M see: ``config.encoder``, in ``config.latent_space``; for an environment
     other than GesturePuzzle, the encoder its observation space calls for."""
     if config.env != ENV_ID:
-        return generic_encoder(config)
+        return generic_encoder(config, device)
     if config.encoder not in ("vae", "oracle"):
         raise ConfigError(f"agent.encoder {config.encoder} is not for {ENV_ID}: use vae or oracle")
     if config.encoder == "oracle":
@@ -66,7 +66,7 @@ ENCODER_OF_KIND = {"vector": "vector", "discrete": "onehot", "image": "vae"}
 """The encoder each kind of observation (:func:`imagine.envs.gym.observation_kind`) needs."""
 
 
-def generic_encoder(config: AgentConfig):
+def generic_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
     """The encoder of a Gymnasium environment's observations (:mod:`imagine.encoders`)."""
     spec = make_spec(config)
     needed = ENCODER_OF_KIND[spec.kind]
@@ -75,12 +75,29 @@ def generic_encoder(config: AgentConfig):
             f"{config.env} has {spec.kind} observations: set agent.encoder={needed} "
             f"(got {config.encoder})"
         )
-    if needed == "vae":
-        raise ConfigError(f"{config.env}: image observations through V are not supported yet")
     if config.latent_space != "posterior":
         raise ConfigError("agent.latent_space=standardized is for V's latent (GesturePuzzle)")
+    if needed == "vae":
+        return image_encoder(config, device)
     space = spec.observation_space
     return VectorEncoder(space.shape[0]) if needed == "vector" else OneHotEncoder(space.n)
+
+
+def image_encoder(config: AgentConfig, device: str | torch.device = "cpu") -> ImageEncoder:
+    """V of ``config.vae_run``, which must have learned ``config.env``'s frames."""
+    if config.vae_run is None:
+        raise ConfigError(
+            f"{config.env} has image observations: train V on its frames first "
+            f"(imagine vae train --env {config.env} --out RUN) and pass --vae RUN"
+        )
+    encoder = ImageEncoder(config.vae_run, device)
+    learned = (encoder.vision_config.env, list(encoder.vision_config.env_wrappers))
+    if learned != (config.env, list(config.wrappers)):
+        raise ConfigError(
+            f"V run {config.vae_run} learned the frames of {learned[0] or 'GesturePuzzle'} "
+            f"(wrappers {learned[1]}), not of {config.env} (wrappers {list(config.wrappers)})"
+        )
+    return encoder
 
 
 @dataclasses.dataclass

@@ -172,17 +172,34 @@ def vae_train(
     dataset: Annotated[
         Path | None, typer.Option(help="Train on a file from `imagine dataset` instead.")
     ] = None,
+    env: Annotated[
+        str | None,
+        typer.Option(
+            metavar="ENV_ID",
+            help="Train on another image environment's frames (a random policy's), resized "
+            "to 64 x 64 RGB.",
+        ),
+    ] = None,
+    wrapper: Annotated[
+        list[str] | None,
+        typer.Option(
+            metavar="MODULE:CLASS", help="A Gymnasium wrapper for --env (repeat: in order)."
+        ),
+    ] = None,
     device: DeviceOption = "auto",
     set_: VisionSetOption = None,
 ) -> None:
-    """Train V on synthesized images (or a dataset file), then its latent classifier.
+    """Train V on synthesized images (or a dataset file, or an env's frames), then its classifier.
 
-    Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume."""
+    Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume. The latent
+    classifier (GesturePuzzle's macrostates) is fitted for GesturePuzzle's images only."""
     from imagine.config import parse_assignments, vision_preset
     from imagine.vision_training import resolve_device, resume_point, train_vae, with_dataset
 
     overrides = parse_assignments(set_ or [])
     overrides |= {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
+    if env is not None:
+        overrides |= {"env": env, "env_wrappers": list(wrapper or [])}
     config = vision_preset(preset, **overrides)
     if dataset is not None:
         config = with_dataset(config, dataset)

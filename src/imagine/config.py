@@ -70,6 +70,12 @@ class VisionConfig:
     dataset: str | None = None
     """A file from `imagine dataset` to train on (e.g. made from your own fragment photos);
     None synthesizes n_train + n_test images with the procedural renderer."""
+    env: str | None = None
+    """Another Gymnasium environment whose frames V learns (``imagine vae train --env``): n_train
+    + n_test observations of a random policy (seeded by data_seed), resized to 64 x 64 RGB;
+    None: GesturePuzzle's images."""
+    env_wrappers: list[str] = dataclasses.field(default_factory=list)
+    """Wrappers of ``env`` (``module:Class``, in order), as the agent's ``wrappers``."""
 
     def __post_init__(self) -> None:
         positive = ("latent_dim", "lr", "batch_size", "epochs", "n_train", "n_test")

@@ -55,3 +55,25 @@ class OneHotEncoder:
         index = torch.as_tensor(np.asarray(observations, dtype=np.int64)).reshape(-1)
         mu = torch.nn.functional.one_hot(index, self.latent_dim).float()
         return mu, torch.zeros_like(mu)
+
+
+class ImageEncoder:
+    """V's posterior of another environment's images (resized to V's 64 x 64 RGB,
+    :func:`imagine.frames.to_vae_images`); V from ``imagine vae train --env``."""
+
+    observation_ndim = 3
+
+    def __init__(self, run, device: str | torch.device = "cpu") -> None:
+        from imagine.vision_training import load_vae
+
+        self.vae, config, _ = load_vae(run)
+        self.vae.eval().to(device)
+        self.latent_dim = config.latent_dim
+        self.vision_config = config
+
+    @torch.no_grad()
+    def encode(self, observations: Any, extra: Any = None) -> tuple[torch.Tensor, torch.Tensor]:
+        from imagine.frames import to_vae_images
+        from imagine.vision import encode_images
+
+        return encode_images(self.vae, to_vae_images(observations))

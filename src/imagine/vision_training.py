@@ -47,14 +47,24 @@ FORMAT = "imagine-vae-1"
 @dataclass
 class VisionData:
     train_images: np.ndarray
-    train_states: np.ndarray
+    train_states: np.ndarray | None
+    """GesturePuzzle's macrostates of the images (None for another environment's frames)."""
     test_images: np.ndarray
-    test_states: np.ndarray
+    test_states: np.ndarray | None
 
 
 def make_data(config: VisionConfig) -> VisionData:
-    """The training and test images of a config: its dataset file, or synthesized
-    (deterministically) from the procedural renderer."""
+    """The training and test images of a config: its dataset file, another environment's
+    frames, or synthesized (deterministically) from the procedural renderer."""
+    if config.env is not None:
+        from imagine.envs.gym import GymSpec
+        from imagine.frames import random_frames
+
+        spec = GymSpec(config.env, config.env_wrappers)
+        if spec.kind != "image":
+            raise ConfigError(f"{config.env} has {spec.kind} observations: V is for images")
+        frames = random_frames(spec, config.n_train + config.n_test, config.data_seed)
+        return VisionData(frames[: config.n_train], None, frames[config.n_train :], None)
     if config.dataset is not None:
         arrays, made = load_dataset(config.dataset)
         if (made.n_train, made.n_test) != (config.n_train, config.n_test):
@@ -249,8 +259,9 @@ def train_vae(
             on_epoch(epoch, row)
     logger.close()
     vae.cpu()
-    if done < config.epochs or not (folder / "classifier.safetensors").is_file():
-        fit_classifier(vae, config, data, folder)
+    has_classifier = (folder / "classifier.safetensors").is_file()
+    if data.train_states is not None and (done < config.epochs or not has_classifier):
+        fit_classifier(vae, config, data, folder)  # GesturePuzzle's macrostates from latents
     return row
 
 
