@@ -144,3 +144,40 @@ def test_image_env_through_v_end_to_end(tmp_path):
     wrong = runner.invoke(app, ["train", str(tmp_path / "b"), "--env", LINE, "--vae", str(v),
                                 "--set", "encoder=vae", "--steps", "10"])  # fmt: skip
     assert wrong.exit_code != 0 and "vector observations" in str(wrong.exception)
+
+
+def test_compare_table_and_figure(tmp_path, monkeypatch):
+    """`imagine compare`: both our methods at each budget, the same test episodes, a table
+    with IQM intervals and a figure; SB3's row skipped in one line when it is not installed;
+    a second run reuses every evaluation."""
+    from typer.testing import CliRunner
+
+    import imagine.compare
+    from imagine.cli import app
+
+    monkeypatch.setattr(imagine.compare, "sb3_available", lambda: False)
+    args = ["compare", "--env", LINE, "--out", str(tmp_path), "--steps", "30,60",
+            "--seeds", "0,1", "--episodes", "10", "--preset", "smoke", "--set", "gamma=0.9",
+            "--set", "imagination_start=2", "--set", "imagination_depth=2"]  # fmt: skip
+    done = CliRunner().invoke(app, args)
+    assert done.exit_code == 0, done.output
+    assert "sb3-dqn skipped" in done.output
+    table = (tmp_path / "comparison.md").read_text()
+    for steps in (30, 60):
+        for method in ("baseline", "augmented"):
+            assert f"| {steps} | {method} | 2 |" in table
+    assert (tmp_path / "comparison.png").stat().st_size > 0
+    evaluation = tmp_path / "augmented" / "seed-1" / "evaluation-0000060.json"
+    before = evaluation.stat().st_mtime_ns
+    again = CliRunner().invoke(app, args)
+    assert again.exit_code == 0 and evaluation.stat().st_mtime_ns == before
+
+
+def test_sb3_row_when_installed(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from imagine.compare import gather, train_sb3
+
+    train_sb3(LINE, [], tmp_path, [0], [150, 300], episodes=10, log=lambda line: None)
+    rows = gather(tmp_path)
+    assert [r["steps"] for r in rows] == [150, 300]
+    assert all(r["method"] == "sb3-dqn" and r["settings"] == "defaults" for r in rows)

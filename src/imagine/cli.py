@@ -571,6 +571,61 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
               f"{100 * result['ci_high']:.1f}%)")  # fmt: skip
 
 
+@app.command("compare")
+def compare_command(
+    env: Annotated[
+        str,
+        typer.Option(metavar="ENV_ID", help="A registered Gymnasium env with Discrete actions."),
+    ],
+    out: Annotated[Path, typer.Option(help="Folder of the runs, table and figure (resumed).")],
+    steps: Annotated[
+        str, typer.Option(metavar="N,N,...", help="Environment-step budgets, e.g. 10000,20000.")
+    ] = "10000,20000",
+    seeds: Annotated[str, typer.Option(metavar="SEEDS", help="Seeds, e.g. 0-4.")] = "0-4",
+    wrapper: Annotated[
+        list[str] | None,
+        typer.Option(metavar="MODULE:CLASS", help="A Gymnasium wrapper (repeat: in order)."),
+    ] = None,
+    vae: Annotated[Path | None, typer.Option(help="V run for image observations.")] = None,
+    episodes: Annotated[int, typer.Option(min=1, help="Greedy test episodes per agent.")] = 100,
+    preset: PresetOption = "fast",
+    set_: SetOption = None,
+) -> None:
+    """Our baseline and augmented agents beside Stable-Baselines3's DQN at equal env steps.
+
+    Each method, each seed, each budget: the mean return of the same greedy test episodes.
+    Writes OUT/comparison.md (mean, std, IQM with 95% bootstrap CI), OUT/comparison.json and
+    OUT/comparison.png (IQM against steps). SB3 (RL Zoo settings where tuned) needs the
+    optional extra: pip install 'imagine[sb3]'; without it its row is skipped."""
+    from imagine.compare import report, sb3_available, train_ours, train_sb3
+    from imagine.config import agent_preset, parse_assignments, parse_seeds
+
+    try:
+        budgets = sorted({int(x) for x in steps.split(",")})
+    except ValueError:
+        raise ImagineError(f"--steps expects comma-separated integers, got {steps!r}") from None
+    if not budgets or budgets[0] < 1:
+        raise ImagineError(f"--steps budgets must be positive, got {steps!r}")
+    chosen = parse_seeds(seeds)
+    values = parse_assignments(set_ or []) | {"env": env, "wrappers": list(wrapper or []),
+                                              "episodes": UNBOUNDED_EPISODES}  # fmt: skip
+    if vae is not None:
+        values["vae_run"] = str(vae)
+    values = with_encoder_of_env(values)
+    out.mkdir(parents=True, exist_ok=True)
+    for method in ("baseline", "augmented"):
+        config = agent_preset(preset, **values, method=method, steps=budgets[0])
+        train_ours(config, out, chosen, budgets, episodes, log=console.print)
+    if sb3_available():
+        train_sb3(env, list(wrapper or []), out, chosen, budgets, episodes, log=console.print)
+    else:
+        console.print("sb3-dqn skipped: stable-baselines3 is not installed "
+                      "(pip install 'imagine[sb3]')")  # fmt: skip
+    table, png = report(env, out)
+    console.print(table)
+    console.print(f"wrote {out / 'comparison.md'} and {png}")
+
+
 @app.command("plan")
 def plan_command(
     run: Annotated[Path, typer.Argument(help="An agent run folder.")],
