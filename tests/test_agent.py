@@ -11,13 +11,14 @@ import pytest
 import torch
 import yaml
 
-from imagine.agent import load_agent, train
+from imagine.agent import load_agent
 from imagine.config import agent_preset, check_imagines
 from imagine.env.rules import REWARD_GOAL
 from imagine.env.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
 from imagine.evaluate import greedy_success, mean_interval, wilson_interval
 from imagine.metrics import read_metrics
+from imagine.training import train
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 

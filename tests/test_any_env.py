@@ -180,4 +180,5 @@ def test_sb3_row_when_installed(tmp_path):
     train_sb3(LINE, [], tmp_path, [0], [150, 300], episodes=10, log=lambda line: None)
     rows = gather(tmp_path)
     assert [r["steps"] for r in rows] == [150, 300]
-    assert all(r["method"] == "sb3-dqn" and r["settings"] == "defaults" for r in rows)
+    assert all(r["method"] == "sb3-dqn" and not r["rl_zoo"] for r in rows)
+    assert rows[0]["settings"] == {"buffer_size": 300}  # SB3's defaults, a buffer of the run

@@ -266,8 +266,8 @@ def test_where_the_papers_baseline_stood():
 def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
     """The baseline's control for imagination: N_I extra real C updates from I_start, none
     before, and only for the baseline."""
-    from imagine.agent import train
     from imagine.metrics import read_metrics
+    from imagine.training import train
 
     config = agent_preset("smoke", encoder="oracle", method="baseline", episodes=60,
                           imagination_start=30, log_every=10,

@@ -12,13 +12,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from imagine.agent import train
 from imagine.config import agent_preset
 from imagine.encoder import OracleEncoder
 from imagine.errors import NumericalError
 from imagine.experiments import Job, LocalRunner
 from imagine.metrics import read_metrics
 from imagine.population import Population
+from imagine.training import train
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 SMOKE_RUN = ["--preset", "smoke", "--oracle", "--episodes", "120", "--set", "imagination_start=40",

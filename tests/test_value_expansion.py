@@ -3,11 +3,11 @@
 import pytest
 import torch
 
-from imagine.agent import train
 from imagine.config import agent_preset
 from imagine.controller import Controller, PopulationController
 from imagine.errors import ConfigError
 from imagine.metrics import read_metrics
+from imagine.training import train
 from imagine.value_expansion import expanded_target
 
 

@@ -1,7 +1,8 @@
 """Algorithm 1: the agent that learns from real and imaginary rollouts (paper section V-B).
 
-:func:`train` runs the loop of Algorithm 1 for one (task, method, seed) and writes a run folder
-(:func:`imagine.training.train_population` trains several seeds at once, each into its own):
+:func:`imagine.training.train` runs the loop of Algorithm 1 for one (task, method, seed) and
+writes a run folder (:func:`imagine.training.train_population` trains several seeds at once,
+each into its own):
 
 - ``config.yaml``: the resolved :class:`~imagine.config.AgentConfig`;
 - ``agent.safetensors`` + ``agent.json``: C, M, their optimizers, both memories and every random
@@ -25,7 +26,6 @@ C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,8 @@ from imagine.encoder import OracleEncoder, StandardizedEncoder, VaeEncoder
 from imagine.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
 from imagine.env import make_composer
 from imagine.envs.spec import make_spec
-from imagine.errors import CheckpointError, ConfigError, NumericalError
+from imagine.errors import CheckpointError, ConfigError
+from imagine.population import READABLE_FORMATS, new_networks, part
 from imagine.world_model import WorldModel
 
 
@@ -183,31 +184,8 @@ def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
     return saved
 
 
-def train(
-    config: AgentConfig,
-    folder: str | Path,
-    on_episode: Callable[[int], None] | None = None,
-    threads: int | None = None,
-    encoder: Any = None,
-    device: str = "cpu",
-) -> Agent:
-    """Run Algorithm 1 into ``folder``, resuming a run that was stopped there. ``encoder``:
-    one made already by :func:`make_encoder` (default: made here)."""
-    from imagine.training import train_population
-
-    result = train_population(
-        [config], [folder], None if on_episode is None else lambda i, e, t: on_episode(e),
-        threads=threads, encoder=encoder, device=device,
-    )  # fmt: skip
-    if result.failures:
-        raise NumericalError(result.failures[0].split(": ", 1)[1])
-    return result.agents[0]
-
-
 def load_agent(folder: str | Path) -> Agent:
     """The agent of a run folder, as of its last checkpoint."""
-    from imagine.population import READABLE_FORMATS, new_networks, part
-
     folder = Path(folder)
     config = saved_config(folder)
     if config is None:

@@ -102,8 +102,10 @@ def train_sb3(
     from imagine.envs.gym import make_env
 
     spec = GymSpec(env_id, wrappers)
-    settings = SB3_ZOO.get(env_id, {})
     horizon = max(max(budgets), SB3_ZOO_STEPS.get(env_id, 0))
+    # SB3's defaults otherwise, but a replay buffer no larger than the run (its default of 1e6
+    # images would take 9 GB for 56 x 56 RGB observations)
+    settings = SB3_ZOO.get(env_id, {"buffer_size": min(1_000_000, horizon)})
     for seed in seeds:
         folder = out / "sb3-dqn" / f"seed-{seed}"
         todo = sorted(b for b in budgets if not evaluation_path(folder, b).is_file())
@@ -135,7 +137,8 @@ def sb3_evaluations(spec, folder: Path, seed: int, budgets: list[int], episodes:
                 )  # fmt: skip
                 write_json(evaluation_path(folder, steps),
                            {"method": "sb3-dqn", "seed": seed, "steps": steps,
-                            "settings": settings or "defaults", **evaluation})  # fmt: skip
+                            "rl_zoo": spec.env_id in SB3_ZOO, "settings": settings,
+                            **evaluation})  # fmt: skip
             return steps < max(budgets)
 
     return Evaluate()

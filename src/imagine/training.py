@@ -26,7 +26,7 @@ from imagine.agent import Agent, check_folder, make_encoder, saved_config
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
 from imagine.devices import resolve_device
-from imagine.errors import ConfigError, Interrupted
+from imagine.errors import ConfigError, Interrupted, NumericalError
 from imagine.evaluate import model_accuracy
 from imagine.metrics import MetricsLogger
 from imagine.population import Population
@@ -163,3 +163,22 @@ def snapshot(population: Population, i: int) -> Agent:
     controller, model = population.networks(i)
     return Agent(population.configs[i], population.encoder, controller, model,
                  population.episode[i], population.t[i])  # fmt: skip
+
+
+def train(
+    config: AgentConfig,
+    folder: str | Path,
+    on_episode: Callable[[int], None] | None = None,
+    threads: int | None = None,
+    encoder: Any = None,
+    device: str = "cpu",
+) -> Agent:
+    """Run Algorithm 1 into ``folder``, resuming a run that was stopped there. ``encoder``:
+    one made already by :func:`make_encoder` (default: made here)."""
+    result = train_population(
+        [config], [folder], None if on_episode is None else lambda i, e, t: on_episode(e),
+        threads=threads, encoder=encoder, device=device,
+    )  # fmt: skip
+    if result.failures:
+        raise NumericalError(result.failures[0].split(": ", 1)[1])
+    return result.agents[0]
