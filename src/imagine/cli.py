@@ -588,6 +588,14 @@ def compare_command(
     ] = None,
     vae: Annotated[Path | None, typer.Option(help="V run for image observations.")] = None,
     episodes: Annotated[int, typer.Option(min=1, help="Greedy test episodes per agent.")] = 100,
+    methods: Annotated[
+        str,
+        typer.Option(
+            metavar="M,M,...",
+            help="Which to train now (the table shows all under OUT): baseline, augmented, "
+            "sb3-dqn.",
+        ),
+    ] = "baseline,augmented,sb3-dqn",
     preset: PresetOption = "fast",
     set_: SetOption = None,
 ) -> None:
@@ -597,7 +605,7 @@ def compare_command(
     Writes OUT/comparison.md (mean, std, IQM with 95% bootstrap CI), OUT/comparison.json and
     OUT/comparison.png (IQM against steps). SB3 (RL Zoo settings where tuned) needs the
     optional extra: pip install 'imagine[sb3]'; without it its row is skipped."""
-    from imagine.compare import report, sb3_available, train_ours, train_sb3
+    from imagine.compare import METHODS, report, sb3_available, train_ours, train_sb3
     from imagine.config import agent_preset, parse_assignments, parse_seeds
 
     try:
@@ -607,18 +615,21 @@ def compare_command(
     if not budgets or budgets[0] < 1:
         raise ImagineError(f"--steps budgets must be positive, got {steps!r}")
     chosen = parse_seeds(seeds)
+    wanted = [m.strip() for m in methods.split(",") if m.strip()]
+    if not wanted or set(wanted) - set(METHODS):
+        raise ImagineError(f"--methods takes {', '.join(METHODS)}; got {methods!r}")
     values = parse_assignments(set_ or []) | {"env": env, "wrappers": list(wrapper or []),
                                               "episodes": UNBOUNDED_EPISODES}  # fmt: skip
     if vae is not None:
         values["vae_run"] = str(vae)
     values = with_encoder_of_env(values)
     out.mkdir(parents=True, exist_ok=True)
-    for method in ("baseline", "augmented"):
+    for method in [m for m in ("baseline", "augmented") if m in wanted]:
         config = agent_preset(preset, **values, method=method, steps=budgets[0])
         train_ours(config, out, chosen, budgets, episodes, log=console.print)
-    if sb3_available():
+    if "sb3-dqn" in wanted and sb3_available():
         train_sb3(env, list(wrapper or []), out, chosen, budgets, episodes, log=console.print)
-    else:
+    elif "sb3-dqn" in wanted:
         console.print("sb3-dqn skipped: stable-baselines3 is not installed "
                       "(pip install 'imagine[sb3]')")  # fmt: skip
     table, png = report(env, out)
