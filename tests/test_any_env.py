@@ -182,3 +182,17 @@ def test_sb3_row_when_installed(tmp_path):
     assert [r["steps"] for r in rows] == [150, 300]
     assert all(r["method"] == "sb3-dqn" and not r["rl_zoo"] for r in rows)
     assert rows[0]["settings"] == {"buffer_size": 300}  # SB3's defaults, a buffer of the run
+
+
+def test_gesture_puzzle_extras_refused_in_one_line(tmp_path):
+    """Planning and the generalization test read GesturePuzzle's rules: asked of another
+    environment's run they are a one-line error, not a traceback."""
+    from typer.testing import CliRunner
+
+    from imagine.cli import app
+
+    config = toy_config(episodes=3, steps=0)
+    train_population([config], [tmp_path / "run"], threads=1)
+    for command in ("plan", "generalize"):
+        done = CliRunner().invoke(app, [command, str(tmp_path / "run")])
+        assert done.exit_code != 0 and "is GesturePuzzle's" in str(done.exception)

@@ -239,7 +239,9 @@ def vae_report(
     from rich.table import Table
 
     from imagine.vision_report import report_run
+    from imagine.vision_training import load_vae
 
+    gesture_puzzle_only(load_vae(run)[1].env or ENV_ID, "imagine vae report")
     report, epoch = report_run(run)
     table = Table(title=f"V after {epoch} epochs ({run})")
     table.add_column("measure")
@@ -303,6 +305,12 @@ def with_options(overrides: dict[str, Any], given: dict[str, tuple[str, Any]]) -
             )
         merged[key] = value
     return merged
+
+
+def gesture_puzzle_only(env: str, what: str) -> None:
+    """A one-line error for GesturePuzzle's extras asked of another environment's run."""
+    if env != ENV_ID:
+        raise ImagineError(f"{what} is GesturePuzzle's (its rules and states); this run is {env}")
 
 
 UNBOUNDED_EPISODES = 1_000_000_000
@@ -653,6 +661,7 @@ def plan_command(
     from imagine.planning import plan_trials, rollout_png, summarize_plans
 
     agent = load_agent(run)
+    gesture_puzzle_only(agent.config.env, "planning")
     summary = summarize_plans(plan_trials(agent, trials, seed))
     write_json(run / "plans.json", summary)
     png = rollout_png(agent, run / "plan_rollout.png", seed=seed)
@@ -678,6 +687,7 @@ def generalize_command(
     from imagine.generalization import generalization, generalization_png
 
     agent = load_agent(run)
+    gesture_puzzle_only(agent.config.env, "the generalization test")
     result = generalization(agent, trials, seed)
     write_json(run / "generalization.json", result)
     png = generalization_png(agent, run / "generalization.png", seed)
