@@ -221,6 +221,7 @@ def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
 def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     """init_from (reward transfer, issue 16): the MDN is the source run's, r, d and C fresh;
     a baseline source or another encoder is refused in one line."""
+    from imagine.agent_checkpoint import start_dynamics
     from imagine.encoder import OracleEncoder
     from imagine.population import Population, new_networks
     from imagine.training import dynamics_source
@@ -230,7 +231,7 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     train(config, source, threads=1)
     hard = dataclasses.replace(config, task="hard", init_from=str(source), seed=3)
     population = Population([hard], OracleEncoder())
-    population.start_dynamics_from(0, dynamics_source(hard))
+    start_dynamics(population, 0, dynamics_source(hard))
     _, model = population.networks(0)
     trained, fresh = load_agent(source).model, new_networks(hard, 8)[1]
     for mine, theirs in zip(

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from imagine.agent import load_agent
+from imagine.agent_checkpoint import load_checkpoint
 from imagine.config import agent_preset
 from imagine.controller import Controller, PopulationController
 from imagine.errors import ConfigError
@@ -214,7 +215,7 @@ def test_an_ensemble_agent_saves_loads_and_resumes_as_if_never_stopped(ensemble_
     agent = load_agent(straight)
     assert len(agent.model.members) == 3
     population = Population([config], agent.encoder)
-    population.load(0, straight)
+    load_checkpoint(population, 0, straight)
     _, model = population.networks(0)
     for (name, p), q in zip(model.state_dict().items(), agent.model.state_dict().values(),
                             strict=True):  # fmt: skip

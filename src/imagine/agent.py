@@ -33,7 +33,8 @@ import numpy as np
 import torch
 
 from imagine import ENV_ID
-from imagine.checkpoint import load_state_dict_strict, load_tensors, read_json
+from imagine.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint
+from imagine.checkpoint import load_state_dict_strict, read_json
 from imagine.config import AgentConfig, from_dict
 from imagine.controller import Controller
 from imagine.encoder import OracleEncoder, StandardizedEncoder, VaeEncoder
@@ -41,7 +42,7 @@ from imagine.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
 from imagine.env import make_composer
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
-from imagine.population import READABLE_FORMATS, new_networks, part
+from imagine.population import new_networks
 from imagine.world_model import WorldModel
 
 
@@ -190,13 +191,10 @@ def load_agent(folder: str | Path) -> Agent:
     config = saved_config(folder)
     if config is None:
         raise CheckpointError(f"{folder} holds no agent run (no agent.json)")
-    meta = read_json(folder / "agent.json", "agent checkpoint metadata")
-    if meta.get("format") not in READABLE_FORMATS:
-        raise CheckpointError(f"{folder / 'agent.json'} is not an agent checkpoint of this version")
+    tensors, meta = read_checkpoint(folder, READABLE_FORMATS)
     encoder = make_encoder(config)
     n_actions = make_spec(config).n_actions
     controller, model = new_networks(config, encoder.latent_dim, n_actions)
-    tensors = load_tensors(folder / "agent.safetensors", "agent checkpoint")
     where = str(folder / "agent.safetensors")
     load_state_dict_strict(controller, part(tensors, "controller"), where)
     load_state_dict_strict(model, part(tensors, "model"), where)

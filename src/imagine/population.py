@@ -26,17 +26,13 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Sequence
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from imagine.checkpoint import (
     load_state_dict_strict,
-    load_tensors,
-    read_json,
-    save_tensors,
-    write_json,
 )
 from imagine.config import AgentConfig
 from imagine.controller import Controller, PopulationController, epsilon
@@ -55,10 +51,6 @@ from imagine.stacked import agent_normal, export_agent, import_agent, set_matmul
 from imagine.true_model import SplitModel, TrueLatentModel
 from imagine.value_expansion import expanded_target
 from imagine.world_model import PopulationWorldModel, WorldModel
-
-FORMAT = "imagine-agent-3"
-READABLE_FORMATS = ("imagine-agent-2", FORMAT)
-"""Checkpoint formats whose networks can be loaded for evaluation (only FORMAT resumes)."""
 
 NETWORK_OF = {
     "losses/mdn": "M's MDN",
@@ -148,7 +140,6 @@ class Population:
         self.t = [0] * P  # real time steps taken
         self.active = [True] * P
         self.failures: dict[int, str] = {}
-        self.saved_windows: list[dict[str, list[float]]] = [{} for _ in range(P)]
         self._starting = [True] * P  # the next step starts a new episode
         self.mu = torch.zeros(P, d, device=self.device)
         self.sigma = torch.zeros(P, d, device=self.device)
@@ -409,10 +400,11 @@ class Population:
         self.model.export_agent(agent, model.to(self.device))
         return controller.cpu().eval(), model.cpu().eval()
 
-    def save(self, agent: int, folder: Path, window: dict[str, list[float]] | None = None) -> None:
-        """Checkpoint one agent into its run folder; ``window`` holds the episode statistics
-        not yet averaged into a metrics row, so a run stopped between rows resumes with the
-        same rows."""
+    def agent_state(self, agent: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Everything agent ``agent`` needs to continue exactly where it is: tensors (C and
+        its target, M, both Adam states, both memories, the gate, its generator) and plain
+        values (episode and step counts, its environment stream, its config, the device);
+        :mod:`imagine.agent_checkpoint` writes them to its run folder."""
         controller, model = self.networks(agent)
         tensors = {f"controller.{k}": v for k, v in controller.state_dict().items()}
         if self.controller.target is not None:
@@ -427,40 +419,24 @@ class Population:
         if self.trust.on:
             tensors |= self.trust.state_dict("gate", agent)
         tensors["rng.generator"] = self.generators[agent].get_state()
-        save_tensors(folder / "agent.safetensors", tensors)
-        write_json(folder / "agent.json", {
-            "format": FORMAT, "episode": self.episode[agent], "t": self.t[agent],
+        values = {
+            "episode": self.episode[agent], "t": self.t[agent],
             "controller_updates": int(self.controller.updates[agent]),
             "env_rng": self.spec.env_state(self.envs, agent),
-            "config": dataclasses.asdict(self.configs[agent]), "window": window or {},
-            "device": self.device.type,
-        })  # fmt: skip
+            "config": dataclasses.asdict(self.configs[agent]), "device": self.device.type,
+        }  # fmt: skip
+        return tensors, values
 
-    def start_dynamics_from(self, agent: int, source: Path) -> None:
-        """Agent ``agent``'s MDN member(s) from the run in ``source`` (``init_from``): its r, d
-        and C keep their fresh weights; M's optimizer state is fresh for all."""
-        tensors = load_tensors(source / "agent.safetensors", "agent checkpoint")
-        where = str(source / "agent.safetensors")
-        model = self.model.export_agent(agent, copy.deepcopy(self.templates[1]))
-        saved = part(tensors, "model")
-        load_state_dict_strict(model.mdn, part(saved, "mdn"), where)
-        load_state_dict_strict(model.more_mdns, part(saved, "more_mdns"), where)
-        self.model.import_agent(agent, model.to(self.device))
-
-    def load(self, agent: int, folder: Path) -> None:
-        """Resume one agent from its run folder (at the start of its next episode)."""
-        meta = read_json(folder / "agent.json", "agent checkpoint metadata")
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+    def set_agent_state(
+        self, agent: int, tensors: dict[str, torch.Tensor], values: dict[str, Any], where: str
+    ) -> None:
+        """Agent ``agent`` as :meth:`agent_state` gave it (it starts its next episode);
+        ``where`` names the file in errors."""
+        if values.get("device", "cpu") != self.device.type:  # generator states differ
             raise CheckpointError(
-                f"{folder / 'agent.json'} is not an agent checkpoint of this version"
+                f"{where} was trained on {values.get('device', 'cpu')}; resume it with --device "
+                f"{values.get('device', 'cpu')}"
             )
-        saved_device = meta.get("device", "cpu")
-        if saved_device != self.device.type:  # generator states differ between devices
-            raise CheckpointError(
-                f"{folder} was trained on {saved_device}; resume it with --device {saved_device}"
-            )
-        tensors = load_tensors(folder / "agent.safetensors", "agent checkpoint")
-        where = str(folder / "agent.safetensors")
         controller, model = copy.deepcopy(self.templates)
         load_state_dict_strict(controller, part(tensors, "controller"), where)
         load_state_dict_strict(model, part(tensors, "model"), where)
@@ -476,12 +452,20 @@ class Population:
         if self.trust.on:
             self.trust.load_state_dict(tensors, "gate", agent)
         self.generators[agent].set_state(tensors["rng.generator"])
-        self.spec.set_env_state(self.envs, agent, meta["env_rng"])
-        self.episode[agent], self.t[agent] = int(meta["episode"]), int(meta["t"])
-        self.controller.updates[agent] = int(meta["controller_updates"])
-        window = meta.get("window", {})
-        self.saved_windows[agent] = {k: [float(v) for v in vs] for k, vs in window.items()}
+        self.spec.set_env_state(self.envs, agent, values["env_rng"])
+        self.episode[agent], self.t[agent] = int(values["episode"]), int(values["t"])
+        self.controller.updates[agent] = int(values["controller_updates"])
         self._starting[agent] = True
+
+    def start_dynamics_from(self, agent: int, tensors: dict[str, torch.Tensor], where: str) -> None:
+        """Agent ``agent``'s MDN member(s) from another run's checkpoint tensors
+        (``init_from``): its r, d and C keep their fresh weights; M's optimizer state is fresh
+        for all."""
+        model = self.model.export_agent(agent, copy.deepcopy(self.templates[1]))
+        saved = part(tensors, "model")
+        load_state_dict_strict(model.mdn, part(saved, "mdn"), where)
+        load_state_dict_strict(model.more_mdns, part(saved, "more_mdns"), where)
+        self.model.import_agent(agent, model.to(self.device))
 
 
 def part(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:

@@ -23,6 +23,7 @@ import yaml
 
 from imagine import ENV_ID
 from imagine.agent import Agent, check_folder, make_encoder, saved_config
+from imagine.agent_checkpoint import load_checkpoint, save_checkpoint, start_dynamics
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
 from imagine.devices import resolve_device
@@ -89,17 +90,18 @@ def train_population(
         encoder = make_encoder(configs[0], torch_device)
     population = Population(configs, encoder, torch_device)
     loggers = []
+    saved_windows: list[dict[str, list[float]]] = [{} for _ in configs]
     for i, (config, folder) in enumerate(zip(configs, folders, strict=True)):
         folder.mkdir(parents=True, exist_ok=True)
         if saved[i] is not None:
-            population.load(i, folder)
+            saved_windows[i] = load_checkpoint(population, i, folder)
         elif config.init_from is not None:
-            population.start_dynamics_from(i, dynamics_source(config))
+            start_dynamics(population, i, dynamics_source(config))
         atomic_write_text(folder / "config.yaml", yaml.safe_dump(dataclasses.asdict(config)))
         loggers.append(MetricsLogger(folder, resume_step=population.episode[i]))
         if population.finished(i):
             population.stop(i)
-    windows = [defaultdict(list, w) for w in population.saved_windows]
+    windows = [defaultdict(list, w) for w in saved_windows]
     failures: dict[int, str] = {}
     with StopSignals() as stop:
         while any(population.active):
@@ -153,7 +155,7 @@ def _after_episode(
         window.clear()
     finished = population.finished(i)
     if e % config.checkpoint_every == 0 or finished or signal_number:
-        population.save(i, folder, dict(window))
+        save_checkpoint(population, i, folder, dict(window))
     if finished or signal_number:
         population.stop(i)
 
