@@ -189,7 +189,7 @@ def vae_train(
     device: DeviceOption = "auto",
     set_: VisionSetOption = None,
 ) -> None:
-    """Train V on synthesized images (or a dataset file, or an env's frames), then its classifier.
+    """Train V on synthesized images, a dataset file or an env's frames; then its classifier.
 
     Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume. The latent
     classifier (GesturePuzzle's macrostates) is fitted for GesturePuzzle's images only."""
