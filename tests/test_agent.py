@@ -233,7 +233,7 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     population = Population([hard], OracleEncoder())
     start_dynamics(population, 0, dynamics_source(hard))
     _, model = population.networks(0)
-    trained, fresh = load_agent(source).model, new_networks(hard, 8)[1]
+    trained, fresh = load_agent(source).model, new_networks(hard, 8, 6)[1]
     for mine, theirs in zip(
         model.mdn.state_dict().values(), trained.mdn.state_dict().values(), strict=True
     ):

@@ -51,6 +51,10 @@ FragmentSeedOption = Annotated[int, typer.Option(min=0, help="Seed of the proced
 CubeFragmentsOption = Annotated[
     int, typer.Option(help="Procedural fragments per (cube, direction) microstate.")
 ]
+WrapperOption = Annotated[
+    list[str] | None,
+    typer.Option(metavar="MODULE:CLASS", help="A Gymnasium wrapper for --env (repeat: in order)."),
+]
 SetOption = Annotated[
     list[str] | None,
     typer.Option(
@@ -180,12 +184,7 @@ def vae_train(
             "to 64 x 64 RGB.",
         ),
     ] = None,
-    wrapper: Annotated[
-        list[str] | None,
-        typer.Option(
-            metavar="MODULE:CLASS", help="A Gymnasium wrapper for --env (repeat: in order)."
-        ),
-    ] = None,
+    wrapper: WrapperOption = None,
     device: DeviceOption = "auto",
     set_: VisionSetOption = None,
 ) -> None:
@@ -351,12 +350,7 @@ def train_agent(
             "gymnasium.make takes it (module:Id included; default: GesturePuzzle).",
         ),
     ] = None,
-    wrapper: Annotated[
-        list[str] | None,
-        typer.Option(
-            metavar="MODULE:CLASS", help="A Gymnasium wrapper for --env (repeat: in order)."
-        ),
-    ] = None,
+    wrapper: WrapperOption = None,
     seed: Annotated[int | None, typer.Option(help="Seed of everything random (default 0).")] = None,
     seeds: Annotated[
         str | None,
@@ -590,10 +584,7 @@ def compare_command(
         str, typer.Option(metavar="N,N,...", help="Environment-step budgets, e.g. 10000,20000.")
     ] = "10000,20000",
     seeds: Annotated[str, typer.Option(metavar="SEEDS", help="Seeds, e.g. 0-4.")] = "0-4",
-    wrapper: Annotated[
-        list[str] | None,
-        typer.Option(metavar="MODULE:CLASS", help="A Gymnasium wrapper (repeat: in order)."),
-    ] = None,
+    wrapper: WrapperOption = None,
     vae: Annotated[Path | None, typer.Option(help="V run for image observations.")] = None,
     episodes: Annotated[int, typer.Option(min=1, help="Greedy test episodes per agent.")] = 100,
     methods: Annotated[

@@ -25,6 +25,7 @@ import numpy as np
 from imagine.checkpoint import read_json, write_json
 from imagine.config import AgentConfig
 from imagine.envs.gym import GymSpec
+from imagine.errors import NumericalError
 from imagine.report import iqm_interval
 from imagine.test_episodes import greedy_policy, run_episodes
 
@@ -71,7 +72,7 @@ def train_ours(
         result = train_population(configs, [folders[i] for i in todo], threads=1)
         for i, agent in zip(todo, result.agents, strict=True):
             if agent is None:
-                raise RuntimeError(result.failures[todo.index(i)])
+                raise NumericalError(result.failures[todo.index(i)])
             policy = greedy_policy(agent.controller, agent.encoder)
             evaluation = run_episodes(spec, policy, episodes, EVAL_SEED)
             write_json(evaluation_path(folders[i], budget),

@@ -62,7 +62,7 @@ NETWORK_OF = {
 
 
 def new_networks(
-    config: AgentConfig, latent_dim: int, n_actions: int = 6
+    config: AgentConfig, latent_dim: int, n_actions: int
 ) -> tuple[Controller, WorldModel]:
     """One agent's freshly initialized C and M (seeded with its seed)."""
     torch.manual_seed(config.seed)
