@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from imagine.dataset import DatasetConfig, synthesize
-from imagine.env import GesturePuzzleEnv, GesturePuzzleVectorEnv, make_composer
-from imagine.env.rules import all_macrostates
+from imagine.envs.gesture_puzzle import GesturePuzzleEnv, GesturePuzzleVectorEnv, make_composer
+from imagine.envs.gesture_puzzle.dataset import DatasetConfig, synthesize
+from imagine.envs.gesture_puzzle.rules import all_macrostates
 
 
 def best_of(repeats: int, fn) -> float:

@@ -36,8 +36,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from imagine.config import agent_preset, parse_assignments
 from imagine.devices import resolve_device
-from imagine.encoder import OracleEncoder
-from imagine.population import Population
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+from imagine.learning.population import Population
 
 
 def synchronize(device: torch.device) -> None:
@@ -129,10 +129,10 @@ def measure(
 
 
 def greedy_seconds(episodes: int = 1000) -> tuple[float, float]:
-    from imagine.controller import Controller
-    from imagine.env import make_composer
-    from imagine.evaluate import greedy_success
-    from imagine.vision import ConvVAE
+    from imagine.envs.gesture_puzzle import make_composer
+    from imagine.envs.gesture_puzzle.evaluation import greedy_success
+    from imagine.models.controller import Controller
+    from imagine.models.vision import ConvVAE
 
     class Encoder:  # V's cost, without a trained V run
         latent_dim = 8
@@ -141,7 +141,7 @@ def greedy_seconds(episodes: int = 1000) -> tuple[float, float]:
             self.vae = ConvVAE(latent_dim=8).eval()
 
         def encode(self, images, states):
-            from imagine.vision import encode_images
+            from imagine.models.vision import encode_images
 
             return encode_images(self.vae, images)
 

@@ -18,7 +18,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from imagine.config import vision_preset
-from imagine.vision import ConvVAE
+from imagine.models.vision import ConvVAE
 
 
 def rate(fn, repeats: int = 3) -> float:
@@ -85,7 +85,7 @@ def main() -> None:
     line("V encoding, one at a time:", 100 * single)
     if args.full:
         start = time.perf_counter()
-        from imagine.vision_training import train_vae
+        from imagine.models.vision_training import train_vae
 
         with tempfile.TemporaryDirectory() as folder:
             train_vae(config, folder)

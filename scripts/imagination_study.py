@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from imagine.experiments import Job, LocalRunner, load_evaluations
+from imagine.study.experiments import Job, LocalRunner, load_evaluations
 
 PAPER_READING = {"model_latents": "sample", "imagination_draw": "sample",
                  "imagination_start": 1000}  # fmt: skip
@@ -305,7 +305,7 @@ def cell(values: list[float]) -> str:
 def from_terminal(accuracy: dict[str, float], task: str) -> float:
     """M's most-likely accuracy on the transitions from terminal states (generalization), from
     the accuracies over all 192 x 6 transitions and over the non-terminal ones."""
-    from imagine.env.rules import all_macrostates, is_terminal
+    from imagine.envs.gesture_puzzle.rules import all_macrostates, is_terminal
 
     if "transition_terminal" in accuracy:
         return accuracy["transition_terminal"]
@@ -317,9 +317,9 @@ def from_terminal(accuracy: dict[str, float], task: str) -> float:
 def imagined(job: Job, budget: int) -> dict[str, float] | None:
     """The imagined-transition accuracy of a finished augmented run at its last checkpoint
     (cached in imagined-NNNNN.json)."""
-    from imagine.agent import load_agent
     from imagine.checkpoint import read_json, write_json
-    from imagine.evaluate import imagined_accuracy
+    from imagine.envs.gesture_puzzle.evaluation import imagined_accuracy
+    from imagine.learning.agent import load_agent
 
     path = Path(job.folder) / f"imagined-{budget:05d}.json"
     if path.is_file():
@@ -386,7 +386,7 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
 def iqm_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
               budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
     """Success % per setting, task and budget as IQM [95% bootstrap interval] over the seeds."""
-    from imagine.report import iqm_interval
+    from imagine.study.report import iqm_interval
 
     head = [f"{t} {b}" for t in tasks for b in budgets]
     lines = ["| setting (IQM [95% CI]) | " + " | ".join(head) + " |",

@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
-from imagine.evaluate import model_accuracy
-from imagine.memory import ReplayMemory, real_fields
-from imagine.world_model import PopulationWorldModel, WorldModel
+from imagine.envs.gesture_puzzle.evaluation import model_accuracy
+from imagine.learning.agent import load_agent
+from imagine.learning.memory import ReplayMemory, real_fields
+from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, dropout in M)
     "samples, next state (paper)": (True, False, 0.0),
@@ -52,7 +52,7 @@ def train_m(memory: ReplayMemory, latent_dim: int, resample: bool, residual: boo
     generator = torch.Generator().manual_seed(0)
     for _ in range(updates):
         population.update(memory.sample(batch, [generator]), [generator], resample=resample)
-    from imagine.stacked import export_agent
+    from imagine.models.stacked import export_agent
 
     return export_agent(population, 0, model).eval()
 

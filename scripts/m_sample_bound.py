@@ -25,9 +25,9 @@ import argparse
 import numpy as np
 import torch
 
-from imagine.encoder import VaeEncoder
-from imagine.env import make_composer
-from imagine.env.rules import (
+from imagine.envs.gesture_puzzle import make_composer
+from imagine.envs.gesture_puzzle.encoders import VaeEncoder
+from imagine.envs.gesture_puzzle.rules import (
     N_ACTIONS,
     all_macrostates,
     apply_actions,

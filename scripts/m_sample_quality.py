@@ -13,9 +13,9 @@ import argparse
 import numpy as np
 import torch
 
-from imagine.agent import load_agent
-from imagine.env import make_composer
-from imagine.env.rules import apply_actions, start_states
+from imagine.envs.gesture_puzzle import make_composer
+from imagine.envs.gesture_puzzle.rules import apply_actions, start_states
+from imagine.learning.agent import load_agent
 
 
 def main() -> None:

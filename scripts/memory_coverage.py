@@ -16,9 +16,14 @@ import argparse
 
 import numpy as np
 
-from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
-from imagine.env.rules import N_ACTIONS, all_macrostates, is_terminal, macrostate_index
+from imagine.envs.gesture_puzzle.rules import (
+    N_ACTIONS,
+    all_macrostates,
+    is_terminal,
+    macrostate_index,
+)
+from imagine.learning.agent import load_agent
 
 
 def coverage(run: str) -> dict[str, float]:

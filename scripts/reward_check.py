@@ -14,11 +14,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
-from imagine.env.rules import REWARD_GOAL, all_macrostates, is_terminal, rewards
-from imagine.evaluate import imagined_transitions
-from imagine.world_model import RewardNet, TerminalNet, log_cosh
+from imagine.envs.gesture_puzzle.evaluation import imagined_transitions
+from imagine.envs.gesture_puzzle.rules import REWARD_GOAL, all_macrostates, is_terminal, rewards
+from imagine.learning.agent import load_agent
+from imagine.models.world_model import RewardNet, TerminalNet, log_cosh
 
 
 def by_kind(r: torch.Tensor, d: torch.Tensor, task: str) -> str:

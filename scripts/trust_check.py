@@ -6,9 +6,9 @@ M's most likely next state names the right macrostate (V's latent classifier, wh
 never uses), and the share each trust rule passes:
 
 - radius: the mode lands within 3 of V's posterior sigmas of the observed next latent (the
-  first rule of ``imagine.gate``);
+  first rule of ``imagine.learning.gate``);
 - action: the mode for the action taken is the nearest of all actions' modes to the observed
-  next latent (the rule now in ``imagine.gate``; a tie of n counts 1/n).
+  next latent (the rule now in ``imagine.learning.gate``; a tie of n counts 1/n).
 
     .venv/bin/python scripts/trust_check.py runs/study14/s18/hard-0 runs/study14/s19/hard-0
 """
@@ -20,10 +20,10 @@ import argparse
 import numpy as np
 import torch
 
-from imagine.agent import load_agent
-from imagine.env import make_composer
-from imagine.env.rules import N_ACTIONS, all_macrostates, apply_actions, is_terminal
-from imagine.imagination import posterior_scale
+from imagine.envs.gesture_puzzle import make_composer
+from imagine.envs.gesture_puzzle.rules import N_ACTIONS, all_macrostates, apply_actions, is_terminal
+from imagine.learning.agent import load_agent
+from imagine.learning.imagination import posterior_scale
 
 RADIUS = 3.0
 

@@ -19,10 +19,10 @@ import argparse
 
 import torch
 
-from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
-from imagine.evaluate import auroc, imagined_transitions
-from imagine.gate import support_distance
+from imagine.envs.gesture_puzzle.evaluation import auroc, imagined_transitions
+from imagine.learning.agent import load_agent
+from imagine.learning.gate import support_distance
 
 
 @torch.no_grad()

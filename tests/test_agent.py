@@ -11,14 +11,14 @@ import pytest
 import torch
 import yaml
 
-from imagine.agent import load_agent
 from imagine.config import agent_preset, check_imagines
-from imagine.env.rules import REWARD_GOAL
-from imagine.env.vector import GesturePuzzleVectorEnv
+from imagine.envs.gesture_puzzle.evaluation import greedy_success, mean_interval, wilson_interval
+from imagine.envs.gesture_puzzle.rules import REWARD_GOAL
+from imagine.envs.gesture_puzzle.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
-from imagine.evaluate import greedy_success, mean_interval, wilson_interval
+from imagine.learning.agent import load_agent
+from imagine.learning.training import train
 from imagine.metrics import read_metrics
-from imagine.training import train
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 
@@ -182,10 +182,10 @@ def test_an_agent_trains_and_is_evaluated_with_a_stochastic_human(tmp_path):
 def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
     """An M whose three components sit on the kept and the two moved next states, weighted
     1 - p, p / 2, p / 2, is calibrated; one that always keeps the hand is off by p."""
-    from imagine.encoder import OracleEncoder
-    from imagine.env.rules import apply_actions, macrostate_index
-    from imagine.evaluate import hand_calibration
-    from imagine.world_model import Mixture
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.envs.gesture_puzzle.evaluation import hand_calibration
+    from imagine.envs.gesture_puzzle.rules import apply_actions, macrostate_index
+    from imagine.models.world_model import Mixture
 
     encoder, p = OracleEncoder(), 0.3
     latents = encoder.state_latents()
@@ -221,10 +221,10 @@ def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
 def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     """init_from (reward transfer, issue 16): the MDN is the source run's, r, d and C fresh;
     a baseline source or another encoder is refused in one line."""
-    from imagine.agent_checkpoint import start_dynamics
-    from imagine.encoder import OracleEncoder
-    from imagine.population import Population, new_networks
-    from imagine.training import dynamics_source
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.agent_checkpoint import start_dynamics
+    from imagine.learning.population import Population, new_networks
+    from imagine.learning.training import dynamics_source
 
     source = tmp_path / "original"
     config = agent_preset("smoke", encoder="oracle", episodes=30, imagination_start=10)
@@ -263,7 +263,7 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
 def test_an_agent_acts_on_camera_images(tmp_path):
     """Agent.load(RUN).act: C's greedy actions for one image or a batch, the same the test
     episodes take; epsilon-greedy from a given generator; the oracle needs macrostates."""
-    from imagine.agent import Agent, greedy_actions
+    from imagine.learning.agent import Agent, greedy_actions
 
     config = agent_preset("smoke", encoder="oracle", method="baseline", episodes=20)
     train(config, tmp_path, threads=1)

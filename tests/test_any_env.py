@@ -9,13 +9,13 @@ import pytest
 from safetensors.torch import load_file
 
 import toy_envs  # noqa: F401  (registers imagine-test/*)
-from imagine.agent import load_agent
 from imagine.config import agent_preset
 from imagine.envs.gym import GymSpec
 from imagine.envs.spec import make_spec
 from imagine.errors import ConfigError
-from imagine.test_episodes import greedy_policy, random_policy, run_episodes
-from imagine.training import train_population
+from imagine.learning.agent import load_agent
+from imagine.learning.test_episodes import greedy_policy, random_policy, run_episodes
+from imagine.learning.training import train_population
 
 LINE = "imagine-test/Line-v0"
 LINE_DISCRETE = "imagine-test/LineDiscrete-v0"
@@ -152,10 +152,10 @@ def test_compare_table_and_figure(tmp_path, monkeypatch):
     a second run reuses every evaluation."""
     from typer.testing import CliRunner
 
-    import imagine.compare
+    import imagine.study.compare
     from imagine.cli import app
 
-    monkeypatch.setattr(imagine.compare, "sb3_available", lambda: False)
+    monkeypatch.setattr(imagine.study.compare, "sb3_available", lambda: False)
     args = ["compare", "--env", LINE, "--out", str(tmp_path), "--steps", "30,60",
             "--seeds", "0,1", "--episodes", "10", "--preset", "smoke", "--set", "gamma=0.9",
             "--set", "imagination_start=2", "--set", "imagination_depth=2"]  # fmt: skip
@@ -175,7 +175,7 @@ def test_compare_table_and_figure(tmp_path, monkeypatch):
 
 def test_sb3_row_when_installed(tmp_path):
     pytest.importorskip("stable_baselines3")
-    from imagine.compare import gather, train_sb3
+    from imagine.study.compare import gather, train_sb3
 
     train_sb3(LINE, [], tmp_path, [0], [150, 300], episodes=10, log=lambda line: None)
     rows = gather(tmp_path)

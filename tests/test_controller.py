@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from imagine.controller import Controller, PopulationController, epsilon
+from imagine.models.controller import Controller, PopulationController, epsilon
 
 
 def test_epsilon_schedule_of_the_paper():

@@ -7,8 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imagine.dataset import DatasetConfig, load_dataset, save_dataset, synthesize
-from imagine.env import rules
+from imagine.envs.gesture_puzzle import rules
+from imagine.envs.gesture_puzzle.dataset import (
+    DatasetConfig,
+    load_dataset,
+    save_dataset,
+    synthesize,
+)
 from imagine.errors import ConfigError, DatasetFileError
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")

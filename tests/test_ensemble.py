@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import torch
 
-from imagine.agent import load_agent
-from imagine.agent_checkpoint import load_checkpoint
 from imagine.config import agent_preset
-from imagine.controller import Controller, PopulationController
+from imagine.envs.gesture_puzzle.evaluation import auroc, disagreement_detection, imagined_accuracy
 from imagine.errors import ConfigError
-from imagine.evaluate import auroc, disagreement_detection, imagined_accuracy
-from imagine.imagination import imagine_rollouts, posterior_scale
+from imagine.learning.agent import load_agent
+from imagine.learning.agent_checkpoint import load_checkpoint
+from imagine.learning.imagination import imagine_rollouts, posterior_scale
+from imagine.learning.population import Population
+from imagine.learning.training import train_population
 from imagine.metrics import read_metrics
-from imagine.population import Population
-from imagine.training import train_population
-from imagine.world_model import PopulationWorldModel, WorldModel, members_spread
+from imagine.models.controller import Controller, PopulationController
+from imagine.models.world_model import PopulationWorldModel, WorldModel, members_spread
 
 
 def batch_of(n: int, d: int = 3, agents: int = 1, seed: int = 0) -> dict[str, torch.Tensor]:

@@ -10,8 +10,8 @@ from gymnasium.utils.env_checker import check_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imagine.env import ENV_ID, GesturePuzzleEnv, rules
-from imagine.env.rules import (
+from imagine.envs.gesture_puzzle import ENV_ID, GesturePuzzleEnv, rules
+from imagine.envs.gesture_puzzle.rules import (
     MAX_EPISODE_ACTIONS,
     TASKS,
     is_terminal,
@@ -126,7 +126,7 @@ def test_bad_arguments():
 
 
 def test_render_returns_the_full_scene_the_observation_is_cut_from():
-    from imagine.env.scene import area_resize_matrix
+    from imagine.envs.gesture_puzzle.scene import area_resize_matrix
 
     e = GesturePuzzleEnv(render_mode="rgb_array")
     obs, _ = e.reset(seed=3)
@@ -154,7 +154,7 @@ def _linear_probe_accuracy(x, labels, n_fit):
 def test_arrows_and_pointed_cube_are_readable_from_the_observation():
     """Each channel shows one cube's arrow, and the hand shows in the pointed cube's channel:
     a linear probe on the pixels of a channel, at half resolution, reads them."""
-    from imagine.env import make_composer
+    from imagine.envs.gesture_puzzle import make_composer
 
     composer = make_composer()
     rng = np.random.default_rng(0)
@@ -206,7 +206,7 @@ def test_importing_the_package_registers_the_environment():
 
     code = (
         "import sys, gymnasium, imagine\n"
-        "assert 'imagine.env' not in sys.modules\n"
+        "assert 'imagine.envs.gesture_puzzle' not in sys.modules\n"
         "env = gymnasium.make('imagine/GesturePuzzle-v0', task='hard')\n"
         "print(env.reset(seed=0)[0].shape)\n"
     )
@@ -252,7 +252,7 @@ def test_the_environment_draws_the_stochastic_humans_distribution(task):
     ends follow the state after the hand moved."""
     from gymnasium.vector import AutoresetMode
 
-    from imagine.env import GesturePuzzleVectorEnv
+    from imagine.envs.gesture_puzzle import GesturePuzzleVectorEnv
 
     n, p = 6000, 0.3
     envs = GesturePuzzleVectorEnv(n, task=task, hand_switch_prob=p,

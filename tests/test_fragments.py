@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from imagine.env import (
+from imagine.envs.gesture_puzzle import (
     FragmentPool,
     GesturePuzzleEnv,
     SceneComposer,
@@ -22,9 +22,14 @@ from imagine.env import (
     save_fragment_folder,
     transition,
 )
-from imagine.env.procedural import CUBE_SHAPE, HAND_SHAPE
-from imagine.env.rules import DIRECTION_NAMES, N_CUBES, N_DIRECTIONS, all_macrostates
-from imagine.env.scene import OBS_SIZE, area_resize_matrix
+from imagine.envs.gesture_puzzle.procedural import CUBE_SHAPE, HAND_SHAPE
+from imagine.envs.gesture_puzzle.rules import (
+    DIRECTION_NAMES,
+    N_CUBES,
+    N_DIRECTIONS,
+    all_macrostates,
+)
+from imagine.envs.gesture_puzzle.scene import OBS_SIZE, area_resize_matrix
 from imagine.errors import ConfigError, FragmentFolderError
 
 # Small pools keep the tests fast: N_CUBE fragments per (cube, direction), N_HAND per hand.

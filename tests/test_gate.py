@@ -7,14 +7,13 @@ import math
 import pytest
 import torch
 
-from imagine.agent import load_agent
 from imagine.checkpoint import load_tensors
 from imagine.config import agent_preset
-from imagine.controller import Controller, PopulationController
-from imagine.encoder import OracleEncoder
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+from imagine.envs.gesture_puzzle.evaluation import imagined_accuracy
 from imagine.errors import ConfigError
-from imagine.evaluate import imagined_accuracy
-from imagine.gate import (
+from imagine.learning.agent import load_agent
+from imagine.learning.gate import (
     FAR,
     ModelTrust,
     gate_transitions,
@@ -22,12 +21,13 @@ from imagine.gate import (
     one_step_right,
     support_distance,
 )
-from imagine.imagination import imagine_rollouts
-from imagine.memory import ReplayMemory
+from imagine.learning.imagination import imagine_rollouts
+from imagine.learning.memory import ReplayMemory
+from imagine.learning.population import EpisodeTotals, Population
+from imagine.learning.training import train_population
 from imagine.metrics import read_metrics
-from imagine.population import EpisodeTotals, Population
-from imagine.training import train_population
-from imagine.world_model import Prediction
+from imagine.models.controller import Controller, PopulationController
+from imagine.models.world_model import Prediction
 from test_imagination_fix import RuleModel
 
 SCHEDULE = torch.tensor([[0.1, 0.2, 0.3],  # step 0 of rollouts 0, 1, 2
@@ -235,7 +235,7 @@ def test_adaptive_n_i_is_zero_while_m_is_not_trusted():
 
 
 def test_trust_is_judged_every_few_real_steps_and_holds_in_between(monkeypatch):
-    import imagine.population
+    import imagine.learning.population
 
     judged = []
 
@@ -243,7 +243,7 @@ def test_trust_is_judged_every_few_real_steps_and_holds_in_between(monkeypatch):
         judged.append(int(valid.sum()))  # real transitions held when judged
         return torch.ones(valid.shape[0])
 
-    monkeypatch.setattr(imagine.population, "one_step_right", counting)
+    monkeypatch.setattr(imagine.learning.population, "one_step_right", counting)
     p = population(12, imagination_adaptive=True, imagination_trust_every=4)
     assert len(judged) == 3  # at the agent's real steps 0, 4 and 8 of 12
     assert judged == sorted(judged) and judged[-1] > judged[0]  # on newer transitions each time

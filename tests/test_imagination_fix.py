@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from imagine.config import agent_preset
-from imagine.controller import Controller, PopulationController
+from imagine.envs.gesture_puzzle.evaluation import imagined_accuracy
+from imagine.envs.gesture_puzzle.latent_classifier import LatentClassifier
+from imagine.envs.gesture_puzzle.vision_report import latent_activity
 from imagine.errors import ConfigError
-from imagine.evaluate import imagined_accuracy
-from imagine.imagination import imagine_rollouts
-from imagine.latent_classifier import LatentClassifier
-from imagine.report import area_under_curve, curve_summary, first_reaching, where_paper_stood
-from imagine.vision_report import latent_activity
-from imagine.world_model import PopulationWorldModel, WorldModel
+from imagine.learning.imagination import imagine_rollouts
+from imagine.models.controller import Controller, PopulationController
+from imagine.models.world_model import PopulationWorldModel, WorldModel
+from imagine.study.report import area_under_curve, curve_summary, first_reaching, where_paper_stood
 
 
 def batch_of(n: int = 256, sigma: float = 0.5) -> dict[str, torch.Tensor]:
@@ -205,8 +205,8 @@ class RuleModel:
         self.encoder, self.task, self.frozen = encoder, task, frozen
 
     def _next(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        from imagine.encoder import factored_embedding
-        from imagine.env.rules import apply_actions
+        from imagine.envs.gesture_puzzle.encoders import factored_embedding
+        from imagine.envs.gesture_puzzle.rules import apply_actions
 
         if self.frozen:
             return z.clone()
@@ -221,7 +221,7 @@ class RuleModel:
         return self._next(z, action)
 
     def predict(self, z, action, generators, draw, temperature=1.0):
-        from imagine.world_model import Prediction
+        from imagine.models.world_model import Prediction
 
         return Prediction(self._next(z, action), torch.zeros(z.shape[:-1]))
 
@@ -229,12 +229,12 @@ class RuleModel:
         return self.encoder.classify(z.reshape(-1, z.shape[-1])).numpy()
 
     def is_terminal(self, z):
-        from imagine.env.rules import is_terminal
+        from imagine.envs.gesture_puzzle.rules import is_terminal
 
         return torch.as_tensor(is_terminal(self._states(z), self.task)).view(z.shape[:-1])
 
     def predict_reward(self, z):
-        from imagine.env.rules import rewards
+        from imagine.envs.gesture_puzzle.rules import rewards
 
         return torch.as_tensor(rewards(self._states(z), self.task), dtype=torch.float32).view(
             z.shape[:-1]
@@ -242,8 +242,8 @@ class RuleModel:
 
 
 def test_imagined_accuracy_judges_imagined_transitions_by_the_rules():
-    from imagine.agent import Agent
-    from imagine.encoder import OracleEncoder
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.agent import Agent
 
     config = agent_preset("smoke", task="hard", encoder="oracle", imagination_draw="mode")
     encoder = OracleEncoder()
@@ -266,8 +266,8 @@ def test_where_the_papers_baseline_stood():
 def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
     """The baseline's control for imagination: N_I extra real C updates from I_start, none
     before, and only for the baseline."""
+    from imagine.learning.training import train
     from imagine.metrics import read_metrics
-    from imagine.training import train
 
     config = agent_preset("smoke", encoder="oracle", method="baseline", episodes=60,
                           imagination_start=30, log_every=10,
@@ -285,8 +285,8 @@ def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
 def test_imagined_rollouts_start_where_imagination_from_says(start):
     """imagination_from=current: every rollout starts at the agent's current state (the paper);
     memory: at states of transitions in M_R (Dyna), not all of them the current one."""
-    from imagine.encoder import OracleEncoder
-    from imagine.population import Population
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.population import Population
 
     config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
                           imagination_depth=1, imagination_breadth=4, model_latents="mu",
@@ -332,7 +332,7 @@ class _OneCollapsed:
 
 
 def test_standardized_latent_drops_collapsed_dimensions_and_keeps_every_state_apart():
-    from imagine.encoder import StandardizedEncoder
+    from imagine.envs.gesture_puzzle.encoders import StandardizedEncoder
 
     inner = _OneCollapsed()
     encoder = StandardizedEncoder(inner)
@@ -349,8 +349,8 @@ def test_standardized_latent_drops_collapsed_dimensions_and_keeps_every_state_ap
 
 
 def test_standardized_oracle_reads_back_every_macrostate():
-    from imagine.agent import make_encoder
-    from imagine.env.rules import all_macrostates
+    from imagine.envs.gesture_puzzle.rules import all_macrostates
+    from imagine.learning.agent import make_encoder
 
     encoder = make_encoder(agent_preset("fast", encoder="oracle", latent_space="standardized"))
     assert encoder.latent_dim == 8
@@ -358,8 +358,8 @@ def test_standardized_oracle_reads_back_every_macrostate():
 
 
 def test_macrostate_separation_measures_the_microstates_against_the_macrostates():
-    from imagine.env.rules import all_macrostates
-    from imagine.vision_report import macrostate_separation
+    from imagine.envs.gesture_puzzle.rules import all_macrostates
+    from imagine.envs.gesture_puzzle.vision_report import macrostate_separation
 
     states = np.repeat(all_macrostates()[:4], 200, axis=0)  # 4 macrostates, 200 images each
     means = torch.tensor([[0.0, 0.0], [2.0, 0.0], [0.0, 4.0], [2.0, 4.0]]).repeat_interleave(200, 0)
@@ -378,8 +378,8 @@ def test_a_diagonal_draw_leaks_from_clouds_whose_dimensions_move_together():
     back by a classifier that reads every cloud point right. Round clouds: every draw right.
     Clouds stretched along y = x on either side of it (V's dimensions moving together from image
     to image): the diagonal Gaussian ignores the correlation and about half its draws cross."""
-    from imagine.env.rules import all_macrostates
-    from imagine.vision_report import draw_accuracy
+    from imagine.envs.gesture_puzzle.rules import all_macrostates
+    from imagine.envs.gesture_puzzle.vision_report import draw_accuracy
 
     two = all_macrostates()[:2]
     states = np.repeat(two, 500, axis=0)
@@ -404,9 +404,14 @@ def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway(model)
     encoder, so every transition in M_I is the true successor with the rules' reward and end,
     while M still learns from M_R; true_mean hands the successor's reference latent."""
     from imagine.config import agent_preset
-    from imagine.encoder import OracleEncoder
-    from imagine.env.rules import apply_actions, is_terminal, macrostate_index, rewards
-    from imagine.population import Population
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.envs.gesture_puzzle.rules import (
+        apply_actions,
+        is_terminal,
+        macrostate_index,
+        rewards,
+    )
+    from imagine.learning.population import Population
 
     config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
                           imagination_model=model, seed=1)  # fmt: skip
@@ -432,7 +437,7 @@ def test_a_true_model_imagines_every_transition_right_and_trains_m_anyway(model)
 def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
     """imagination_draw=component: M's most likely next macrostate, drawn with its spread; a
     draw by the weights lands in the light component now and then."""
-    from imagine.world_model import Mixture, sample_mixture
+    from imagine.models.world_model import Mixture, sample_mixture
 
     n = 4000
     log_pi = torch.log(torch.tensor([[0.3, 0.7]])).expand(n, 2)
@@ -456,10 +461,10 @@ def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
 def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
     """An agent that imagines from M_R (imagination_from=memory) is judged on rollouts from
     the states its M_R holds, as it imagines in training; others from new episodes' starts."""
-    from imagine.agent import Agent
-    from imagine.encoder import OracleEncoder
-    from imagine.env.rules import all_macrostates, start_states
-    from imagine.evaluate import imagined_transitions
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.envs.gesture_puzzle.evaluation import imagined_transitions
+    from imagine.envs.gesture_puzzle.rules import all_macrostates, start_states
+    from imagine.learning.agent import Agent
 
     encoder = OracleEncoder()
     held = all_macrostates()[[5, 17, 77]]  # terminal states: never a start of `hard`
@@ -478,9 +483,14 @@ def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
 def test_split_models_take_the_state_from_one_m_and_the_reward_from_the_other():
     """true_reward: the learned M's next states with the rules' reward and end of whatever
     state it imagined; true_state: the rules' next states with the learned r and d."""
-    from imagine.encoder import OracleEncoder
-    from imagine.env.rules import apply_actions, is_terminal, macrostate_index, rewards
-    from imagine.population import Population
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.envs.gesture_puzzle.rules import (
+        apply_actions,
+        is_terminal,
+        macrostate_index,
+        rewards,
+    )
+    from imagine.learning.population import Population
 
     encoder = OracleEncoder()
     held = {}

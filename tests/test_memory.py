@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from imagine.memory import ReplayMemory, imaginary_fields, real_fields
+from imagine.learning.memory import ReplayMemory, imaginary_fields, real_fields
 
 
 def transitions(start, n, dim=2):

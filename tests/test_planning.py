@@ -10,8 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imagine.env.rules import apply_actions, is_goal, is_illegal, optimal_plan_length, start_states
-from imagine.planning import judge_plan
+from imagine.envs.gesture_puzzle.rules import (
+    apply_actions,
+    is_goal,
+    is_illegal,
+    optimal_plan_length,
+    start_states,
+)
+from imagine.study.planning import judge_plan
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 

@@ -6,14 +6,14 @@ import pytest
 import torch
 from torch import nn
 
-from imagine.agent import load_agent
 from imagine.config import agent_preset
 from imagine.errors import ConfigError
+from imagine.learning.agent import load_agent
+from imagine.learning.population import Population
+from imagine.learning.training import train_population
 from imagine.metrics import read_metrics
-from imagine.population import Population
-from imagine.stacked import PopulationAdam, StackedMLP, export_agent, set_matmul_dtype
-from imagine.training import train_population
-from imagine.world_model import PopulationWorldModel, WorldModel
+from imagine.models.stacked import PopulationAdam, StackedMLP, export_agent, set_matmul_dtype
+from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 
 def numbers(folder):
@@ -75,7 +75,7 @@ def test_a_population_resumes_agents_at_different_points(tmp_path):
 
 
 def test_a_population_shares_everything_but_the_seed():
-    from imagine.encoder import OracleEncoder
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 
     a = agent_preset("smoke", encoder="oracle", seed=0)
     with pytest.raises(ConfigError, match="only in their seed"):

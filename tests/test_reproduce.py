@@ -17,9 +17,9 @@ import yaml
 
 from imagine.config import parse_seeds
 from imagine.errors import ConfigError
-from imagine.experiments import Job, LocalRunner, RayRunner, run_job, study_jobs
-from imagine.report import claims, iqm_interval, markdown_table, summarize
-from imagine.reproduce import StudyConfig, same_study
+from imagine.study.experiments import Job, LocalRunner, RayRunner, run_job, study_jobs
+from imagine.study.report import claims, iqm_interval, markdown_table, summarize
+from imagine.study.reproduce import StudyConfig, same_study
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 SMOKE = ["--preset", "smoke", "--seeds", "0,1", "--set", "imagination_start=10",

@@ -13,12 +13,12 @@ import pytest
 import torch
 
 from imagine.config import agent_preset
-from imagine.encoder import OracleEncoder
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 from imagine.errors import NumericalError
-from imagine.experiments import Job, LocalRunner
+from imagine.learning.population import Population
+from imagine.learning.training import train
 from imagine.metrics import read_metrics
-from imagine.population import Population
-from imagine.training import train
+from imagine.study.experiments import Job, LocalRunner
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 SMOKE_RUN = ["--preset", "smoke", "--oracle", "--episodes", "120", "--set", "imagination_start=40",

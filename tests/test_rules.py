@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from imagine.env import rules
-from imagine.env.rules import DOWN, LEFT, RIGHT, UP
+from imagine.envs.gesture_puzzle import rules
+from imagine.envs.gesture_puzzle.rules import DOWN, LEFT, RIGHT, UP
 
 
 def goal(state, task):

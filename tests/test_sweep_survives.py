@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-import imagine.experiments as experiments
+import imagine.study.experiments as experiments
 from imagine.errors import ConfigError, FolderInUse
-from imagine.experiments import LOCK_FILE, Job, LocalRunner, RayRunner, folder_lock
-from imagine.reproduce import StudyConfig, reproduce
+from imagine.study.experiments import LOCK_FILE, Job, LocalRunner, RayRunner, folder_lock
+from imagine.study.reproduce import StudyConfig, reproduce
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 HOLD = """import sys, time
-from imagine.experiments import folder_lock
+from imagine.study.experiments import folder_lock
 with folder_lock(sys.argv[1]):
     print("held", flush=True)
     time.sleep(600)
@@ -90,14 +90,14 @@ def test_the_lock_is_released_when_its_holder_raises(tmp_path):
 
 def test_ray_reruns_a_killed_worker_and_the_run_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     pytest.importorskip("ray")
-    from imagine.experiments import run_jobs
+    from imagine.study.experiments import run_jobs
 
     killed, resumed = tmp_path / "killed", tmp_path / "resumed"
 
     def flaky(jobs, device="cpu"):
         """First attempt: the first budget (evaluated, checkpointed), then SIGKILL itself.
         Later ones: the whole job, noting the episode each agent resumes from."""
-        from imagine.population import Population
+        from imagine.learning.population import Population
 
         if not killed.exists():
             run_jobs([dataclasses.replace(j, budgets=j.budgets[:1]) for j in jobs], device)

@@ -4,11 +4,11 @@ import pytest
 import torch
 
 from imagine.config import agent_preset
-from imagine.controller import Controller, PopulationController
 from imagine.errors import ConfigError
+from imagine.learning.training import train
+from imagine.learning.value_expansion import expanded_target
 from imagine.metrics import read_metrics
-from imagine.training import train
-from imagine.value_expansion import expanded_target
+from imagine.models.controller import Controller, PopulationController
 
 
 class ShiftModel:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
-from imagine.env import ENV_ID, GesturePuzzleEnv, GesturePuzzleVectorEnv, rules
+from imagine.envs.gesture_puzzle import ENV_ID, GesturePuzzleEnv, GesturePuzzleVectorEnv, rules
 from imagine.errors import ConfigError
 
 TASKS = ("original", "hard")

@@ -10,12 +10,12 @@ import pytest
 import torch
 
 from imagine.config import vision_preset
-from imagine.dataset import DatasetConfig, synthesize
+from imagine.envs.gesture_puzzle.dataset import DatasetConfig, synthesize
+from imagine.envs.gesture_puzzle.latent_classifier import LatentClassifier
 from imagine.errors import CheckpointError, ConfigError
-from imagine.latent_classifier import LatentClassifier
 from imagine.metrics import read_metrics
-from imagine.vision import ConvVAE, encode_images, to_input, vae_loss
-from imagine.vision_training import load_vae, train_vae
+from imagine.models.vision import ConvVAE, encode_images, to_input, vae_loss
+from imagine.models.vision_training import load_vae, train_vae
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
 
@@ -145,7 +145,7 @@ def test_bad_configs():
 
 def test_classifier_is_right_on_the_latents_it_was_fit_on():
     """Latents of 192 macrostates as separated clusters (as a trained V gives them)."""
-    from imagine.env.rules import all_macrostates
+    from imagine.envs.gesture_puzzle.rules import all_macrostates
 
     rng = np.random.default_rng(0)
     states = all_macrostates()[rng.integers(0, 192, 2000)]
@@ -212,8 +212,8 @@ def test_malformed_metadata_is_reported(one_epoch_run, tmp_path, document, messa
 
 
 def test_report_scores_fresh_images_from_the_training_pool(tmp_path):
-    from imagine.dataset import save_dataset
-    from imagine.vision_training import fresh_images_config, with_dataset
+    from imagine.envs.gesture_puzzle.dataset import save_dataset
+    from imagine.models.vision_training import fresh_images_config, with_dataset
 
     made = DatasetConfig(n_train=100, n_test=3, seed=4, fragment_seed=5, n_cube_fragments=3)
     path = save_dataset(tmp_path / "d.safetensors", synthesize(made), made)

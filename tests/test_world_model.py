@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from imagine.world_model import (
+from imagine.models.world_model import (
     MDN,
     Mixture,
     PopulationWorldModel,
@@ -229,8 +229,8 @@ def test_a_tempered_draw_sharpens_the_mixture_as_world_models_does():
 
 
 def test_m_accuracy_reports_draws_at_the_agents_temperature():
-    from imagine.encoder import OracleEncoder
-    from imagine.evaluate import model_accuracy
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.envs.gesture_puzzle.evaluation import model_accuracy
 
     torch.manual_seed(0)
     model, encoder = WorldModel(8, dropout=0.0), OracleEncoder()

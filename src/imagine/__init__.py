@@ -5,8 +5,8 @@ Importing the package registers the paper's environment with Gymnasium, so that:
     import gymnasium, imagine
     env = gymnasium.make("imagine/GesturePuzzle-v0", task="hard")
 
-works without importing :mod:`imagine.env` first (registration only names the entry points;
-the environment's modules load on the first ``make``).
+works without importing :mod:`imagine.envs.gesture_puzzle` first (registration only names the entry
+points; the environment's modules load on the first ``make``).
 """
 
 import gymnasium as _gym
@@ -17,7 +17,7 @@ ENV_ID = "imagine/GesturePuzzle-v0"
 if ENV_ID not in _gym.registry:
     _gym.register(
         id=ENV_ID,
-        entry_point="imagine.env.gesture_puzzle:GesturePuzzleEnv",
-        vector_entry_point="imagine.env.vector:GesturePuzzleVectorEnv",
+        entry_point="imagine.envs.gesture_puzzle.environment:GesturePuzzleEnv",
+        vector_entry_point="imagine.envs.gesture_puzzle.vector:GesturePuzzleVectorEnv",
         max_episode_steps=None,
     )

@@ -88,8 +88,8 @@ def env_show(
 
     Example scenes of goal, illegal and start states with their labels and observations, and
     the fragment variation of one microstate."""
-    from imagine.env import make_composer
-    from imagine.env.contact_sheet import contact_sheet
+    from imagine.envs.gesture_puzzle import make_composer
+    from imagine.envs.gesture_puzzle.contact_sheet import contact_sheet
 
     composer = make_composer(fragments, fragment_seed, n_cube_fragments, n_hand_fragments)
     path = contact_sheet(composer, task.value, seed, out)
@@ -107,7 +107,7 @@ def env_export_fragments(
 
     The folder has the layout `--fragments` reads: replace its images by fragments cut from
     your own camera."""
-    from imagine.env import procedural_pool, save_fragment_folder
+    from imagine.envs.gesture_puzzle import procedural_pool, save_fragment_folder
 
     pool = procedural_pool(fragment_seed, n_cube_fragments, n_hand_fragments)
     console.print(f"wrote {save_fragment_folder(pool, folder)}")
@@ -125,8 +125,8 @@ def dataset(
     n_hand_fragments: HandFragmentsOption = 50,
 ) -> None:
     """Synthesize the images V trains on (the paper's 100,000 training and 10,000 test)."""
-    from imagine.dataset import DatasetConfig, save_dataset, synthesize
-    from imagine.env import make_composer
+    from imagine.envs.gesture_puzzle import make_composer
+    from imagine.envs.gesture_puzzle.dataset import DatasetConfig, save_dataset, synthesize
 
     make_composer(fragments, fragment_seed, n_cube_fragments, n_hand_fragments)  # check first
     config = DatasetConfig(
@@ -193,7 +193,7 @@ def vae_train(
     Per-epoch losses go to OUT/metrics.csv and OUT/tensorboard; run again to resume. The latent
     classifier (GesturePuzzle's macrostates) is fitted for GesturePuzzle's images only."""
     from imagine.config import parse_assignments, vision_preset
-    from imagine.vision_training import resolve_device, resume_point, train_vae, with_dataset
+    from imagine.models.vision_training import resolve_device, resume_point, train_vae, with_dataset
 
     overrides = parse_assignments(set_ or [])
     overrides |= {k: v for k, v in {"epochs": epochs, "seed": seed}.items() if v is not None}
@@ -237,8 +237,8 @@ def vae_report(
     and (--agent) the accuracy of an agent's M in this V's latent space."""
     from rich.table import Table
 
-    from imagine.vision_report import report_run
-    from imagine.vision_training import load_vae
+    from imagine.envs.gesture_puzzle.vision_report import report_run
+    from imagine.models.vision_training import load_vae
 
     gesture_puzzle_only(load_vae(run)[1].env or ENV_ID, "imagine vae report")
     report, epoch = report_run(run)
@@ -275,7 +275,7 @@ def vae_report(
         label = f"right draws, best diagonal M, x {name.removeprefix('scale_')}"
         table.add_row(label, f"{100 * value:.1f}%")
     if agent is not None:
-        from imagine.vision_report import agent_model_accuracy
+        from imagine.envs.gesture_puzzle.vision_report import agent_model_accuracy
 
         for name, value in agent_model_accuracy(run, agent).items():
             table.add_row(f"M accuracy ({agent}): {name}", f"{100 * value:.1f}%")
@@ -318,9 +318,9 @@ UNBOUNDED_EPISODES = 1_000_000_000
 
 def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
     """For an environment other than GesturePuzzle with no encoder chosen: the one its
-    observation space calls for (:data:`imagine.agent.ENCODER_OF_KIND`)."""
-    from imagine.agent import ENCODER_OF_KIND
+    observation space calls for (:data:`imagine.learning.agent.ENCODER_OF_KIND`)."""
     from imagine.envs.gym import GymSpec
+    from imagine.learning.agent import ENCODER_OF_KIND
 
     env = values.get("env", ENV_ID)
     if env == ENV_ID or "encoder" in values:
@@ -388,7 +388,6 @@ def train_agent(
     encoder follows the observations: vectors as they are, Discrete as one-hot."""
     import dataclasses
 
-    from imagine.agent import check_folder, make_encoder
     from imagine.config import (
         agent_preset,
         check_imagines,
@@ -398,7 +397,8 @@ def train_agent(
     )
     from imagine.devices import resolve_device
     from imagine.errors import NumericalError
-    from imagine.training import train_population
+    from imagine.learning.agent import check_folder, make_encoder
+    from imagine.learning.training import train_population
 
     overrides: dict = load_yaml(config_file) if config_file is not None else {}
     overrides |= parse_assignments(set_ or [])
@@ -470,14 +470,14 @@ def evaluate_agent(
     imagines for C (judged by V's latent classifier); how well the members' disagreement (an
     ensemble M) and the support distance detect the wrong ones (AUROC), and how right the
     transitions its gate accepts and rejects are."""
-    from imagine.agent import load_agent
     from imagine.checkpoint import write_json
-    from imagine.evaluate import (
+    from imagine.envs.gesture_puzzle.evaluation import (
         greedy_success,
         hand_calibration,
         imagined_accuracy,
         model_accuracy,
     )
+    from imagine.learning.agent import load_agent
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
@@ -556,7 +556,7 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     mean return (and success where the environment reports it) into RUN/evaluation.json."""
     from imagine.checkpoint import write_json
     from imagine.envs.spec import make_spec
-    from imagine.test_episodes import greedy_policy, run_episodes
+    from imagine.learning.test_episodes import greedy_policy, run_episodes
 
     spec = make_spec(agent.config)
     result = run_episodes(spec, greedy_policy(agent.controller, agent.encoder), episodes, seed)
@@ -604,8 +604,8 @@ def compare_command(
     Writes OUT/comparison.md (mean, std, IQM with 95% bootstrap CI), OUT/comparison.json and
     OUT/comparison.png (IQM against steps). SB3 (RL Zoo settings where tuned) needs the
     optional extra: pip install 'imagine[sb3]'; without it its row is skipped."""
-    from imagine.compare import METHODS, report, sb3_available, train_ours, train_sb3
     from imagine.config import agent_preset, parse_assignments, parse_seeds
+    from imagine.study.compare import METHODS, report, sb3_available, train_ours, train_sb3
 
     try:
         budgets = sorted({int(x) for x in steps.split(",")})
@@ -647,9 +647,9 @@ def plan_command(
     Generates plans, executes them open-loop and compares their length with the optimal;
     writes RUN/plans.json and RUN/plan_rollout.png (V's decoding of an imagined plan of
     length 5, paper Fig. 5)."""
-    from imagine.agent import load_agent
     from imagine.checkpoint import write_json
-    from imagine.planning import plan_trials, rollout_png, summarize_plans
+    from imagine.learning.agent import load_agent
+    from imagine.study.planning import plan_trials, rollout_png, summarize_plans
 
     agent = load_agent(run)
     gesture_puzzle_only(agent.config.env, "planning")
@@ -673,9 +673,9 @@ def generalize_command(
 
     Paper section V, Model Generalization: the 20-trial test and all terminal states x
     actions; writes RUN/generalization.json and RUN/generalization.png (paper Fig. 7)."""
-    from imagine.agent import load_agent
     from imagine.checkpoint import write_json
-    from imagine.generalization import generalization, generalization_png
+    from imagine.learning.agent import load_agent
+    from imagine.study.generalization import generalization, generalization_png
 
     agent = load_agent(run)
     gesture_puzzle_only(agent.config.env, "the generalization test")
@@ -726,8 +726,8 @@ def reproduce_study(
     V, every (task, method, seed) agent evaluated at every budget, Tables I and II, figures and
     REPORT.md, all in OUT."""
     from imagine.config import parse_assignments, parse_seeds
-    from imagine.experiments import folder_lock
-    from imagine.reproduce import StudyConfig, reproduce
+    from imagine.study.experiments import folder_lock
+    from imagine.study.reproduce import StudyConfig, reproduce
 
     def numbers(text: str, name: str) -> tuple[int, ...]:
         try:

@@ -25,16 +25,19 @@ from imagine.errors import ConfigError
 
 PRESETS = ("paper", "fast", "smoke")
 GATES = ("none", "stop", "mask", "random")
-"""The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.gate`)."""
+"""The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.learning.gate`)."""
+TASKS: tuple[str, ...] = ("original", "hard")
+"""GesturePuzzle's tasks (:mod:`imagine.envs.gesture_puzzle.rules`): one dynamics, two goals."""
 IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_end", "true_state")
-"""The choices of ``AgentConfig.imagination_model`` (:mod:`imagine.true_model`)."""
+"""The choices of ``AgentConfig.imagination_model``
+(:mod:`imagine.envs.gesture_puzzle.true_model`)."""
 REWARD_LOSSES = ("logcosh", "mse")
-"""The choices of ``AgentConfig.reward_loss`` (:data:`imagine.world_model.REWARD_LOSSES`)."""
+"""The choices of ``AgentConfig.reward_loss`` (:data:`imagine.models.world_model.REWARD_LOSSES`)."""
 UNCERTAINTIES = ("disagreement", "support")
-"""The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.gate`)."""
+"""The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.learning.gate`)."""
 ENCODERS = ("vae", "oracle", "vector", "onehot")
 """vae: V (images); oracle: GesturePuzzle's true state; vector and onehot: an observation that
-needs no V (:mod:`imagine.encoders`)."""
+needs no V (:mod:`imagine.models.encoders`)."""
 
 
 @dataclass(frozen=True)
@@ -246,7 +249,7 @@ class AgentConfig:
     not when it resumes. The source must use the same encoder (V run) and M's architecture."""
     hand_switch_prob: float = 0.0
     """A stochastic human (issue 16): the probability that the hand moves to another cube
-    after each action (0: the paper's task; :mod:`imagine.env.rules`)."""
+    after each action (0: the paper's task; :mod:`imagine.envs.gesture_puzzle.rules`)."""
     method: str = "augmented"
     """baseline (real transitions only) or augmented (plus imaginary ones from episode I_start)."""
     episodes: int = 2000
@@ -300,8 +303,8 @@ class AgentConfig:
     spread of its images, as a real step draws new fragments)."""
     value_expansion: int = 0
     """H: C's targets for real transitions look H steps further through M from I_start on
-    (model-based value expansion, Feinberg et al. 2018; :mod:`imagine.value_expansion`): C's
-    greedy actions, M's most likely next states, r and d, then Q' bootstraps. 0: equation 1
+    (model-based value expansion, Feinberg et al. 2018; :mod:`imagine.learning.value_expansion`):
+    C's greedy actions, M's most likely next states, r and d, then Q' bootstraps. 0: equation 1
     (the paper). Augmented only; beside imagination, which ``n_imaginary_updates: 0`` turns
     off."""
     imagination_temperature: float = 1.0
@@ -380,21 +383,21 @@ class AgentConfig:
     """Which imagined transitions reach M_I, by their uncertainty u (imagination_uncertainty)
     against
     tau = imagination_gate_scale * quantile_q(first-step u of the agent's recent rollouts)
-    (:mod:`imagine.gate`): stop (MACURA: a rollout ends at its first
+    (:mod:`imagine.learning.gate`): stop (MACURA: a rollout ends at its first
     u > tau, that transition not kept), mask (M2AC: each u > tau dropped), random (the control:
     as many as mask drops, chosen at random) or none (all kept; the paper)."""
     imagination_model: str = "learned"
     """What imagination rolls out: the agent's learned M (the paper), or ``true``: the
-    environment's rules observed through V (:mod:`imagine.true_model`; a diagnostic of what a
-    perfect M would give with this V, as the oracle encoder is for V; never a result), or
-    ``true_mean``: the same rules, the next state the mean latent of the next macrostate's
-    images instead of a fresh image (a perfect M's mode: what separates it from ``true`` is
-    the spread of the images); ``true_reward``: the learned M's next state with the rules'
-    reward and end; ``true_end``: the learned next state and reward, the rules' end;
+    environment's rules observed through V (:mod:`imagine.envs.gesture_puzzle.true_model`; a
+    diagnostic of what a perfect M would give with this V, as the oracle encoder is for V; never a
+    result), or ``true_mean``: the same rules, the next state the mean latent of the next
+    macrostate's images instead of a fresh image (a perfect M's mode: what separates it from
+    ``true`` is the spread of the images); ``true_reward``: the learned M's next state with the
+    rules' reward and end; ``true_end``: the learned next state and reward, the rules' end;
     ``true_state``: the rules' next state (as ``true_mean``) with the learned
     r- and d-networks. M is trained either way."""
     imagination_uncertainty: str = "disagreement"
-    """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.gate`):
+    """The u a gate judges each imagined transition (z, a, z') by (:mod:`imagine.learning.gate`):
     disagreement (the members' mean pairwise distance between their modes of z'; needs
     model_ensemble >= 2) or support (the distance from z to the nearest start latent of a
     real transition with the same action in the agent's M_R: how far M extrapolates from its
@@ -410,7 +413,7 @@ class AgentConfig:
     a = 1 without a gate), and make no imaginary update while M is not trusted: while fewer
     than imagination_trust_floor of its one-step modes on the newest real transitions identify
     the action taken (its mode for that action is the nearest of all actions' modes to the
-    observed next mu; :mod:`imagine.gate`)."""
+    observed next mu; :mod:`imagine.learning.gate`)."""
     imagination_trust_floor: float = 0.8
     """Share of right one-step predictions on the newest real transitions below which an
     adaptive agent makes no imaginary update, in [0, 1]."""
@@ -440,8 +443,6 @@ class AgentConfig:
         return self.method == "augmented" or self.baseline_trains_m
 
     def __post_init__(self) -> None:
-        from imagine.env.rules import TASKS
-
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
                    "encoder": ENCODERS,
                    "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),

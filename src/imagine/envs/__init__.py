@@ -4,7 +4,8 @@
   picks the spec of a config's ``env``;
 - :mod:`imagine.envs.gym`: any registered Gymnasium environment with a Discrete action space
   (images, vectors, Discrete or Dict observations);
-- GesturePuzzle, the paper's task, is :mod:`imagine.env` (its spec: :mod:`imagine.env.spec`).
+- GesturePuzzle, the paper's task, is :mod:`imagine.envs.gesture_puzzle` (its spec:
+:mod:`imagine.envs.gesture_puzzle.spec`).
 """
 
 from imagine.envs.spec import EnvSpec, make_spec

@@ -1,6 +1,6 @@
 """The seam between Algorithm 1 and an environment.
 
-:class:`~imagine.population.Population` trains P agents in lockstep on one Gymnasium vector
+:class:`~imagine.learning.population.Population` trains P agents in lockstep on one Gymnasium vector
 environment (autoreset disabled: each agent's episodes start when the population says so). What
 it needs of the environment beyond Gymnasium's API is an :class:`EnvSpec`: how to make that
 vector environment, how many actions there are, what the encoder reads from a step's
@@ -61,9 +61,14 @@ def make_spec(config) -> EnvSpec:
     ``task`` and ``hand_switch_prob``, or any registered Gymnasium environment with its
     ``wrappers``)."""
     if config.env == ENV_ID:
-        from imagine.env.spec import GesturePuzzleSpec
+        from imagine.envs.gesture_puzzle.spec import GesturePuzzleSpec
 
         return GesturePuzzleSpec(config.task, config.hand_switch_prob)
     from imagine.envs.gym import GymSpec
 
     return GymSpec(config.env, tuple(config.wrappers))
+
+
+def episode_seed(seed: int, k: int) -> int:
+    """The reset seed of test episode k."""
+    return int(np.random.SeedSequence([seed, k]).generate_state(1)[0])

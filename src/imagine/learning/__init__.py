@@ -1,0 +1,1 @@
+"""Algorithm 1: memories, imagination, the population in lockstep, training, the agent."""

@@ -1,0 +1,205 @@
+"""Algorithm 1: the agent that learns from real and imaginary rollouts (paper section V-B).
+
+:func:`imagine.learning.training.train` runs the loop of Algorithm 1 for one (task, method, seed)
+and writes a run folder (:func:`imagine.learning.training.train_population` trains several seeds at
+once, each into its own):
+
+- ``config.yaml``: the resolved :class:`~imagine.config.AgentConfig`;
+- ``agent.safetensors`` + ``agent.json``: C, M, their optimizers, both memories and every random
+  generator state after the last checkpointed episode; a run started again resumes there and
+  continues with the same numbers as if it had never stopped;
+- ``metrics.csv`` and ``tensorboard/``: returns, success, epsilon, every loss and M's accuracy.
+
+The loop, per real time step (Algorithm 1, lines 7-19; :mod:`imagine.learning.population`): encode,
+act epsilon-greedily, step, encode, store in M_R; N_E updates of M's three networks; N_R updates of
+C on M_R; from episode I_start on (method ``augmented``), I_B imagined rollouts of depth up to
+I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with imagination off.
+
+:class:`Agent` is a trained agent as evaluation, planning and the generalization test use it:
+its config, encoder, C and M. ``Agent.load(RUN)`` reads one; ``agent.act(observations)`` gives
+C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step::
+
+    agent = Agent.load("runs/hard-aug/seed-0")
+    actions = agent.act(images)  # uint8 (N, 64, 64, 3) -> int64 (N,)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from imagine import ENV_ID
+from imagine.checkpoint import load_state_dict_strict, read_json
+from imagine.config import AgentConfig, from_dict
+from imagine.envs.gesture_puzzle import make_composer
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder, StandardizedEncoder, VaeEncoder
+from imagine.envs.spec import make_spec
+from imagine.errors import CheckpointError, ConfigError
+from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint
+from imagine.learning.population import new_networks
+from imagine.models.controller import Controller
+from imagine.models.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
+from imagine.models.world_model import WorldModel
+
+
+def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
+    """What C and M see: ``config.encoder``, in ``config.latent_space``; for an environment
+    other than GesturePuzzle, the encoder its observation space calls for."""
+    if config.env != ENV_ID:
+        return generic_encoder(config, device)
+    if config.encoder not in ("vae", "oracle"):
+        raise ConfigError(f"agent.encoder {config.encoder} is not for {ENV_ID}: use vae or oracle")
+    if config.encoder == "oracle":
+        encoder = OracleEncoder(sigma=config.oracle_sigma)
+    elif config.vae_run is None:
+        raise ConfigError(
+            "agent.encoder is vae but no V run was given (--vae RUN or encoder=oracle)"
+        )
+    else:
+        encoder = VaeEncoder(config.vae_run, make_composer(), device=device)
+    return StandardizedEncoder(encoder) if config.latent_space == "standardized" else encoder
+
+
+ENCODER_OF_KIND = {"vector": "vector", "discrete": "onehot", "image": "vae"}
+"""The encoder each kind of observation (:func:`imagine.envs.gym.observation_kind`) needs."""
+
+
+def generic_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
+    """The encoder of a Gymnasium environment's observations (:mod:`imagine.models.encoders`)."""
+    spec = make_spec(config)
+    needed = ENCODER_OF_KIND[spec.kind]
+    if config.encoder != needed:
+        raise ConfigError(
+            f"{config.env} has {spec.kind} observations: set agent.encoder={needed} "
+            f"(got {config.encoder})"
+        )
+    if config.latent_space != "posterior":
+        raise ConfigError("agent.latent_space=standardized is for V's latent (GesturePuzzle)")
+    if needed == "vae":
+        return image_encoder(config, device)
+    space = spec.observation_space
+    return VectorEncoder(space.shape[0]) if needed == "vector" else OneHotEncoder(space.n)
+
+
+def image_encoder(config: AgentConfig, device: str | torch.device = "cpu") -> ImageEncoder:
+    """V of ``config.vae_run``, which must have learned ``config.env``'s frames."""
+    if config.vae_run is None:
+        raise ConfigError(
+            f"{config.env} has image observations: train V on its frames first "
+            f"(imagine vae train --env {config.env} --out RUN) and pass --vae RUN"
+        )
+    encoder = ImageEncoder(config.vae_run, device)
+    learned = (encoder.vision_config.env, list(encoder.vision_config.env_wrappers))
+    if learned != (config.env, list(config.wrappers)):
+        raise ConfigError(
+            f"V run {config.vae_run} learned the frames of {learned[0] or 'GesturePuzzle'} "
+            f"(wrappers {learned[1]}), not of {config.env} (wrappers {list(config.wrappers)})"
+        )
+    return encoder
+
+
+@dataclasses.dataclass
+class Agent:
+    """A trained agent: C and M (single-agent modules, eval mode) after ``episode`` episodes
+    and ``t`` real time steps."""
+
+    config: AgentConfig
+    encoder: Any
+    controller: Controller
+    model: WorldModel
+    episode: int
+    t: int
+    memory_starts: tuple[torch.Tensor, torch.Tensor] | None = None
+    """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
+    ``support`` uncertainty measures against, :mod:`imagine.learning.gate`); None if not saved."""
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Agent:
+        """The agent of a run folder, as of its last checkpoint (:func:`load_agent`)."""
+        return load_agent(folder)
+
+    def act(
+        self,
+        observations: np.ndarray,
+        macrostates: np.ndarray | None = None,
+        epsilon: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
+        """C's actions for observations: uint8 images (N, 64, 64, 3), or one (64, 64, 3) for
+        one action (another environment's: a batch of its observations, or one). Greedy
+        (argmax_a Q(mu, a) with mu from the encoder), or with ``epsilon`` a uniform random
+        action that often, drawn from ``rng``. ``macrostates`` (N, 4) only for the oracle
+        encoder, which reads the true state instead of the image."""
+        images = np.asarray(observations)
+        one = images.ndim == getattr(self.encoder, "observation_ndim", 3)
+        if one:
+            images = images[None]
+            macrostates = None if macrostates is None else np.asarray(macrostates)[None]
+        if self.config.encoder == "oracle" and macrostates is None:
+            raise ConfigError("an oracle-encoder agent acts on macrostates: pass macrostates")
+        actions = greedy_actions(self.controller, self.encoder, images, macrostates)
+        if epsilon > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            explore = rng.random(len(actions)) < epsilon
+            actions = np.where(explore, rng.integers(self.controller.n_actions, size=len(actions)),
+                               actions)  # fmt: skip
+        return actions[0] if one else actions
+
+
+@torch.no_grad()
+def greedy_actions(
+    controller: Controller, encoder, images: np.ndarray, states: np.ndarray | None
+) -> np.ndarray:
+    """argmax_a Q(mu, a) for a batch of observations (images (N, 64, 64, 3) for GesturePuzzle),
+    mu from the encoder: int64 (N,)."""
+    mu, _ = encoder.encode(images, states)
+    device = next(controller.parameters()).device
+    was_training = controller.training
+    controller.eval()
+    actions = controller(mu.to(device)).argmax(-1).cpu().numpy()
+    controller.train(was_training)
+    return actions
+
+
+def saved_config(folder: Path) -> AgentConfig | None:
+    """The config of the run in ``folder``, or None if there is none yet."""
+    if not (folder / "agent.json").is_file():
+        return None
+    meta = read_json(folder / "agent.json", "agent checkpoint metadata")
+    return from_dict(AgentConfig, meta.get("config", {}), "agent")
+
+
+def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
+    """The config of the run already in ``folder`` (None if there is none); an error if it is
+    another run's (only the budgets, episodes and steps, may differ)."""
+    saved = saved_config(folder)
+    budget = {"episodes": config.episodes, "steps": config.steps}
+    if saved is not None and dataclasses.replace(saved, **budget) != config:
+        raise CheckpointError(
+            f"{folder} holds a run with another config; use a new folder or the same settings"
+        )
+    return saved
+
+
+def load_agent(folder: str | Path) -> Agent:
+    """The agent of a run folder, as of its last checkpoint."""
+    folder = Path(folder)
+    config = saved_config(folder)
+    if config is None:
+        raise CheckpointError(f"{folder} holds no agent run (no agent.json)")
+    tensors, meta = read_checkpoint(folder, READABLE_FORMATS)
+    encoder = make_encoder(config)
+    n_actions = make_spec(config).n_actions
+    controller, model = new_networks(config, encoder.latent_dim, n_actions)
+    where = str(folder / "agent.safetensors")
+    load_state_dict_strict(controller, part(tensors, "controller"), where)
+    load_state_dict_strict(model, part(tensors, "model"), where)
+    starts = None
+    if "real.mu" in tensors and "real.action" in tensors:
+        starts = (tensors["real.mu"], tensors["real.action"])
+    return Agent(config, encoder, controller.eval(), model.eval(), int(meta["episode"]),
+                 int(meta["t"]), starts)  # fmt: skip

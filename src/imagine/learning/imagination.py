@@ -1,0 +1,115 @@
+"""Imagined rollouts: M run in closed loop like an environment (paper section IV; Algorithm 1,
+lines 17-18).
+
+``I_B`` rollouts start from the current real latent state (each a sample of V's N(mu, sigma)),
+act with C epsilon-greedily, draw the next state from the MDN and feed it back, take the reward
+from the r-network and end a rollout where the d-network says terminal, after at most ``I_D``
+steps. M imagines without dropout.
+
+Every agent of a population imagines at once; an agent draws from its own generator, and only
+while one of its rollouts is still going, so its rollouts are those it would imagine alone.
+
+With an ensemble of K MDNs per agent (``model_ensemble``), each rollout follows a member drawn
+uniformly at each step (PETS's TS1 propagation, Chua et al. 2018; MBPO, Janner et al. 2019),
+so the members' differences stay in what C is handed instead of being averaged away (the mean
+of two modes that name different macrostates names neither). Every imagined transition carries
+the members' disagreement about it, from the K modes m_k of its next state:
+
+    disagreement = (1 / (K (K - 1))) sum_{j != k} || m_j - m_k ||_2  /  s,
+
+s the mean of V's posterior sigma over its active dimensions at the rollout's start
+(:func:`posterior_scale`): how far apart two members put the next state, on average, in units
+of V's own uncertainty about a state; 0 with one member or members that agree. A detector of
+wrong transitions that needs no labels: ``imagine evaluate`` reports its AUROC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from imagine.models.controller import PopulationController
+from imagine.models.stacked import agent_normal
+from imagine.models.world_model import PopulationWorldModel
+
+FIELDS = ("z", "action", "next_z", "reward", "done", "disagreement", "rollout", "step")
+"""What a rollout hands back per transition: M_I's fields, the members' disagreement, and
+which of the agent's rollouts it belongs to and its step in it (what a gate needs,
+:mod:`imagine.learning.gate`)."""
+
+ACTIVE_SIGMA = 0.5
+"""A latent dimension V uses has a posterior sigma well below the prior's 1; a collapsed one
+keeps sigma near 1 and carries no information (:mod:`imagine.envs.gesture_puzzle.vision_report`)."""
+
+
+def posterior_scale(sigma: torch.Tensor) -> torch.Tensor:
+    """The unit of disagreement for posteriors (..., D): the mean of sigma over the active
+    dimensions (sigma < :data:`ACTIVE_SIGMA`), over all when none is; (...)."""
+    active = sigma < ACTIVE_SIGMA
+    count = active.sum(-1)
+    mean_active = (sigma * active).sum(-1) / count.clamp(min=1)
+    return torch.where(count > 0, mean_active, sigma.mean(-1)).clamp(min=1e-6)
+
+
+@torch.no_grad()
+def imagine_rollouts(
+    model: PopulationWorldModel,
+    controller: PopulationController,
+    mu: torch.Tensor,
+    sigma: torch.Tensor,
+    breadth: int,
+    depth: int,
+    eps: Sequence[float],
+    generators: Sequence[torch.Generator | None],
+    draw: str = "sample",
+    scale: torch.Tensor | None = None,
+    temperature: float = 1.0,
+) -> list[dict[str, torch.Tensor] | None]:
+    """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
+    disagreement, rollout, step)`` of ``breadth`` rollouts of up to ``depth`` steps from its
+    latent posterior ``N(mu[i], sigma[i])`` (mu, sigma: (P, latent_dim)), or of one rollout
+    from each of ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order
+    imagined (step by step, rollouts in order within a step);
+    None for agents without one. ``draw``: each next state a sample of M's mixture (the
+    paper; at ``temperature``, :func:`~imagine.models.world_model.sample_mixture`), or its mode (the
+    mean of the heaviest component). ``scale``: the unit of
+    disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
+    ``sigma`` (pass V's own when ``sigma`` is not V's)."""
+    if mu.dim() == 2:
+        mu, sigma = mu.unsqueeze(1), sigma.unsqueeze(1)
+    else:
+        breadth = mu.shape[1]
+    P, _, D = mu.shape
+    shape = (P, breadth, D)
+    unit = posterior_scale(sigma) if scale is None else scale.view(P, -1)
+    unit = unit.expand(P, breadth)
+    z = agent_normal(mu.expand(shape), sigma.expand(shape), generators)
+    going = torch.tensor([g is not None for g in generators], device=mu.device)
+    alive = going.unsqueeze(1).expand(P, breadth).clone()
+    steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
+    kept: list[torch.Tensor] = []  # which rollouts were alive at each step
+    rollout = torch.arange(breadth, device=mu.device).expand(P, breadth)
+    for t in range(depth):
+        flags = going.tolist()  # one read of the device per depth step
+        drawing = [g if flags[i] else None for i, g in enumerate(generators)]
+        action = controller.act(z, eps, drawing)
+        next_z, spread = model.predict(z, action, drawing, draw, temperature)
+        done = model.is_terminal(next_z)
+        reward = model.predict_reward(next_z)
+        steps.append((z, action, next_z, reward, done.float(), spread / unit, rollout,
+                      torch.full_like(rollout, t)))  # fmt: skip
+        kept.append(alive.clone())
+        alive &= ~done
+        going &= alive.any(-1)
+        if not going.any():
+            break
+        z = next_z
+    mask = torch.stack(kept)  # (T, P, breadth)
+    stacked = [torch.stack(values) for values in zip(*steps, strict=True)]
+    return [
+        None
+        if generator is None
+        else {key: value[:, i][mask[:, i]] for key, value in zip(FIELDS, stacked, strict=True)}
+        for i, generator in enumerate(generators)
+    ]

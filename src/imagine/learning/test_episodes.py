@@ -1,0 +1,91 @@
+"""Test episodes in any environment (:mod:`imagine.envs`): mean return with its 95% interval,
+and the success rate where the environment says when a goal is reached.
+
+``episodes`` episodes run on ``copies`` copies of the environment at once (a Gymnasium vector
+env, autoreset disabled); test episode k starts from ``reset(seed=...)`` with a seed drawn from
+(``seed``, k), so the same seed gives the same episodes whatever the number of copies.
+GesturePuzzle's own test (1000 episodes in one batch, the paper's success rate) is
+:func:`imagine.envs.gesture_puzzle.evaluation.greedy_success`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+
+from imagine.envs.spec import EnvSpec, episode_seed
+from imagine.intervals import mean_interval, wilson_interval
+
+Policy = Callable[[np.ndarray, Any], np.ndarray]
+"""Actions, int64 (N,), for N observations as the spec hands them to an encoder (x, extra)."""
+
+
+@torch.no_grad()
+def run_episodes(
+    spec: EnvSpec, policy: Policy, episodes: int, seed: int, copies: int = 64
+) -> dict[str, float]:
+    """``episodes`` episodes of ``policy``: mean return (95% interval), episode length, and
+    success (Wilson 95% interval) when the environment reports it."""
+    copies = min(copies, episodes)
+    envs = spec.make_vector_env(copies)
+    returns, lengths = np.zeros(episodes), np.zeros(episodes)  # by test episode
+    successes = np.zeros(episodes, dtype=bool)
+    reported = False
+    episode_of = np.arange(copies)  # the test episode each copy runs (>= episodes: idle)
+    seeds = [episode_seed(seed, int(k)) for k in episode_of]
+    obs, info = envs.reset(seed=seeds)
+    total = np.zeros(copies)
+    length = np.zeros(copies, dtype=np.int64)
+    won = np.zeros(copies, dtype=bool)
+    actions = np.zeros(copies, dtype=np.int64)
+    while (episode_of < episodes).any():
+        live = np.flatnonzero(episode_of < episodes)
+        x, extra = spec.encoder_input(obs, info)
+        actions[live] = policy(x[live], None if extra is None else extra[live])
+        obs, reward, terminated, truncated, info = envs.step(actions)
+        total += reward
+        length += 1
+        success = spec.success(reward, info)
+        if success is not None:
+            reported = True
+            won |= success
+        ended = terminated | truncated  # idle copies too: a vector env steps every copy
+        if not ended.any():
+            continue
+        done = np.flatnonzero(ended & (episode_of < episodes))
+        k = episode_of[done]
+        returns[k], lengths[k], successes[k] = total[done], length[done], won[done]
+        episode_of[done] = episode_of.max() + 1 + np.arange(len(done))
+        seeds = [
+            episode_seed(seed, int(k)) if e else None
+            for k, e in zip(episode_of, ended, strict=True)
+        ]
+        obs, info = envs.reset(seed=seeds, options={"reset_mask": ended})
+        done = np.flatnonzero(ended)
+        total[done], length[done], won[done] = 0.0, 0, False
+    envs.close()
+    low, high = mean_interval(returns)
+    out = {"mean_return": float(returns.mean()), "return_ci_low": low,
+           "return_ci_high": high, "mean_length": float(lengths.mean()),
+           "episodes": episodes}  # fmt: skip
+    if reported:
+        n = int(successes.sum())
+        s_low, s_high = wilson_interval(n, episodes)
+        out |= {"success": n / episodes, "ci_low": s_low, "ci_high": s_high}
+    return out
+
+
+def greedy_policy(controller, encoder) -> Policy:
+    """C's greedy actions on the encoder's mu."""
+    from imagine.learning.agent import greedy_actions
+
+    return lambda x, extra: greedy_actions(controller, encoder, x, extra)
+
+
+def random_policy(n_actions: int, seed: int) -> Policy:
+    """Uniform random actions (the floor every agent must beat)."""
+    rng = np.random.default_rng(seed)
+    return lambda x, extra: rng.integers(n_actions, size=len(x))

@@ -1,0 +1,1 @@
+"""The paper's experiments and ours: sweeps, the reproduction, reports, comparisons."""
