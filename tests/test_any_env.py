@@ -12,8 +12,8 @@ import toy_envs  # noqa: F401  (registers imagine-test/*)
 from imagine.config import agent_preset
 from imagine.envs.gym import GymSpec
 from imagine.envs.spec import make_spec
-from imagine.errors import ConfigError
-from imagine.learning.agent import load_agent
+from imagine.errors import CheckpointError, ConfigError
+from imagine.learning.agent import Agent, load_agent
 from imagine.learning.test_episodes import greedy_policy, random_policy, run_episodes
 from imagine.learning.training import train_population
 
@@ -52,6 +52,14 @@ def test_toy_env_agent_beats_random(tmp_path, env, encoder, method):
     loaded = load_agent(tmp_path / "run")  # Agent.act on raw observations
     obs = np.array([[0.25, 1.0]], np.float32) if encoder == "vector" else np.array([1])
     assert loaded.act(obs[0]) == loaded.act(obs)[0] == 1  # right, towards the goal
+    saved = loaded.save(tmp_path / "saved")  # Agent.save: networks only, loads back the same
+    again = Agent.load(saved)
+    assert (again.act(obs) == loaded.act(obs)).all() and again.t == agent.t == 300
+    assert all(
+        again.controller.state_dict()[k].equal(v) for k, v in loaded.controller.state_dict().items()
+    )
+    with pytest.raises(CheckpointError, match="saved agent"):  # not a run to resume
+        train_population([config], [saved], threads=1)
 
 
 def test_population_agents_stop_apart_and_equal_alone(tmp_path):

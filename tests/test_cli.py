@@ -42,7 +42,8 @@ COMMANDS = every_command()
 )
 def test_help_reads_well(words, command):
     """Each command's summary is one sentence on one line (the command list shows it whole),
-    and no option shows a bare type such as <str> where a metavar says what it takes."""
+    and no option shows a bare type such as <str> where a metavar says what it takes (nor <bool>
+    beside a flag, which takes no value)."""
     import inspect
 
     from typer.testing import CliRunner
@@ -54,7 +55,7 @@ def test_help_reads_well(words, command):
     done = CliRunner().invoke(app, [*words, "--help"], env={"COLUMNS": "100"})
     assert done.exit_code == 0 and "Usage" in done.output
     assert summary.split()[-1] in done.output  # the summary whole, not cut
-    for bare in ("<str>", "<list[", "<dict"):
+    for bare in ("<str>", "<list[", "<dict", "<bool>"):
         assert bare not in done.output, (words, done.output)
 
 

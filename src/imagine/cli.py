@@ -18,6 +18,23 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from imagine import ENV_ID
 from imagine.errors import ImagineError
 
+
+def _flags_show_no_type() -> None:
+    """A flag takes no value, so its help shows none: typer 0.29 with click 8.2+ prints
+    ``<bool>`` beside every flag (``--help`` included); a flag's type is left out here."""
+    option = getattr(getattr(typer, "core", None), "TyperOption", None)
+    shown = getattr(option, "display_type_rich", None)
+    if shown is None or getattr(shown, "flags_show_no_type", False):
+        return
+
+    def display_type_rich(self, ctx):
+        return None if getattr(self, "is_flag", False) else shown(self, ctx)
+
+    display_type_rich.flags_show_no_type = True
+    option.display_type_rich = display_type_rich
+
+
+_flags_show_no_type()
 app = typer.Typer(
     help="Deep RL with imaginary rollouts (Thabet et al. 2019): V, M and C on GesturePuzzle.",
     no_args_is_help=True,

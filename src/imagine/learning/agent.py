@@ -17,10 +17,13 @@ I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with im
 
 :class:`Agent` is a trained agent as evaluation, planning and the generalization test use it:
 its config, encoder, C and M. ``Agent.load(RUN)`` reads one; ``agent.act(observations)`` gives
-C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step::
+C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step;
+``agent.save(FOLDER)`` writes it (config, C and M, no memories) where ``Agent.load`` and
+``imagine evaluate`` read it::
 
     agent = Agent.load("runs/hard-aug/seed-0")
     actions = agent.act(images)  # uint8 (N, 64, 64, 3) -> int64 (N,)
+    agent.save("robot/agent")
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from imagine.envs.gesture_puzzle import make_composer
 from imagine.envs.gesture_puzzle.encoders import OracleEncoder, StandardizedEncoder, VaeEncoder
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
-from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint
+from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint, save_agent
 from imagine.learning.population import new_networks
 from imagine.models.controller import Controller
 from imagine.models.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
@@ -148,6 +151,17 @@ class Agent:
             actions = np.where(explore, rng.integers(self.controller.n_actions, size=len(actions)),
                                actions)  # fmt: skip
         return actions[0] if one else actions
+
+    def save(self, folder: str | Path) -> Path:
+        """Write this agent (its config, C, M and the start states of its M_R where it has
+        them) into ``folder``, for :meth:`load` and ``imagine evaluate``; not a run that
+        training resumes (no memories, optimizers or random streams). Returns the folder."""
+        tensors = {f"controller.{k}": v for k, v in self.controller.state_dict().items()}
+        tensors |= {f"model.{k}": v for k, v in self.model.state_dict().items()}
+        if self.memory_starts is not None:
+            tensors["real.mu"], tensors["real.action"] = self.memory_starts
+        values = {"episode": self.episode, "t": self.t, "config": dataclasses.asdict(self.config)}
+        return save_agent(Path(folder), tensors, values)
 
 
 @torch.no_grad()

@@ -20,7 +20,9 @@ from imagine.checkpoint import load_tensors, read_json, save_tensors, write_json
 from imagine.errors import CheckpointError
 
 FORMAT = "imagine-agent-3"
-READABLE_FORMATS = ("imagine-agent-2", FORMAT)
+SAVED_FORMAT = "imagine-saved-agent-1"
+"""An agent written by :meth:`~imagine.learning.agent.Agent.save`: networks only."""
+READABLE_FORMATS = ("imagine-agent-2", FORMAT, SAVED_FORMAT)
 """Checkpoint formats whose networks can be loaded for evaluation (only FORMAT resumes)."""
 
 
@@ -38,11 +40,27 @@ def save_checkpoint(
     write_json(folder / "agent.json", {"format": FORMAT, **values, "window": window or {}})
 
 
+def save_agent(folder: Path, tensors: dict[str, torch.Tensor], values: dict[str, Any]) -> Path:
+    """Write a saved agent (:data:`SAVED_FORMAT`): its networks' tensors and its values."""
+    folder.mkdir(parents=True, exist_ok=True)
+    save_tensors(folder / "agent.safetensors", tensors)
+    write_json(folder / "agent.json", {"format": SAVED_FORMAT, **values})
+    return folder
+
+
 def read_checkpoint(
     folder: Path, formats: tuple[str, ...] = (FORMAT,)
 ) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """The tensors and values of a run folder's checkpoint; an error for another format."""
     meta = read_json(folder / "agent.json", "agent checkpoint metadata")
+    if (
+        isinstance(meta, dict)
+        and meta.get("format") == SAVED_FORMAT
+        and SAVED_FORMAT not in formats
+    ):
+        raise CheckpointError(
+            f"{folder} holds a saved agent (Agent.save: networks only), not a run training resumes"
+        )
     if not isinstance(meta, dict) or meta.get("format") not in formats:
         raise CheckpointError(f"{folder / 'agent.json'} is not an agent checkpoint of this version")
     return load_tensors(folder / "agent.safetensors", "agent checkpoint"), meta
