@@ -6,14 +6,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 from safetensors.torch import load_file
 
+import imagine
 import toy_envs  # noqa: F401  (registers imagine-test/*)
 from imagine.config import agent_preset
 from imagine.envs.gym import GymSpec
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
 from imagine.learning.agent import Agent, load_agent
+from imagine.learning.extras import EnvExtras
 from imagine.learning.test_episodes import greedy_policy, random_policy, run_episodes
 from imagine.learning.training import train_population
 
@@ -111,9 +114,36 @@ def test_bad_wrapper_and_encoder(tmp_path):
         GymSpec(LINE, ["no_such_module_here:Wrapper"])
     with pytest.raises(ConfigError, match=r"set agent\.encoder=onehot"):
         train_population([toy_config(LINE_DISCRETE, "vector")], [tmp_path / "a"], threads=1)
-    with pytest.raises(ConfigError, match="rules"):
+    with pytest.raises(ConfigError, match="own dynamics; imagine-test/Line-v0 has none"):
         config = toy_config(method="augmented", imagination_model="true")
         train_population([config], [tmp_path / "b"], threads=1)
+
+
+PROBED = []
+
+
+def line_probe(model, encoder, config):
+    """A user's probe of M on the toy line: its most likely next position from the start,
+    moving right (the true one: 0.25)."""
+    PROBED.append(config.env)
+    x = model.eval().mdn.most_likely(torch.tensor([[0.0, 1.0]]), torch.tensor([1]))[0, 0]
+    return {"right_from_start": float(abs(x - 0.25) < 0.1)}
+
+
+LINE_EXTRAS = EnvExtras(model_probe=line_probe)
+
+
+def test_an_environment_registers_its_own_extras(tmp_path, monkeypatch):
+    """A user's environment names its extras by entry point (as GesturePuzzle does): its probe
+    of M is logged with the metrics; without extras there is none."""
+    monkeypatch.setitem(imagine.EXTRAS, LINE, "test_any_env:LINE_EXTRAS")
+    config = toy_config(method="augmented", steps=150, accuracy_every=5, log_every=5)
+    train_population([config], [tmp_path / "probed"], threads=1)
+    header = (tmp_path / "probed" / "metrics.csv").read_text().splitlines()[0]
+    assert "model/right_from_start_accuracy" in header and PROBED == [LINE] * len(PROBED) != []
+    monkeypatch.setitem(imagine.EXTRAS, LINE, "test_any_env:line_probe")
+    with pytest.raises(ConfigError, match="is not an EnvExtras"):
+        train_population([config], [tmp_path / "bad"], threads=1)
 
 
 def test_wrappers_apply_in_order():

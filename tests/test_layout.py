@@ -23,6 +23,7 @@ GESTURE_PUZZLE_EXTRAS = {
     "imagine.envs.gesture_puzzle.true_model": 2,
     "imagine.envs.gesture_puzzle.evaluation": 3,
     "imagine.envs.gesture_puzzle.vision_report": 3,
+    "imagine.envs.gesture_puzzle.extras": 3,
 }
 """GesturePuzzle modules above the env layer: the probes of a trained V, M or C."""
 
@@ -87,3 +88,20 @@ def test_no_module_imports_in_a_cycle():
 
     cycles = [c for m in sorted(graph) if m not in state and (c := visit(m, []))]
     assert cycles == []
+
+
+def test_the_core_imports_no_gesture_puzzle_module():
+    """models and learning reach GesturePuzzle only through its spec and its extras, named by
+    entry-point strings (imagine.EXTRAS, as Gymnasium names environments)."""
+    core = [
+        f"{module} imports {other}"
+        for module, others in imports().items()
+        if layer(module) in (2, 3) and ".gesture_puzzle" not in module
+        for other in others
+        if ".gesture_puzzle" in other
+    ]
+    # V's training reads GesturePuzzle's dataset and fits its latent classifier (both on the
+    # env layer, below models); nothing else
+    allowed = {f"imagine.models.vision_training imports imagine.envs.gesture_puzzle.{m}"
+               for m in ("dataset", "latent_classifier")}  # fmt: skip
+    assert set(core) <= allowed

@@ -21,3 +21,7 @@ if ENV_ID not in _gym.registry:
         vector_entry_point="imagine.envs.gesture_puzzle.vector:GesturePuzzleVectorEnv",
         max_episode_steps=None,
     )
+
+EXTRAS: dict[str, str] = {ENV_ID: "imagine.envs.gesture_puzzle.extras:EXTRAS"}
+"""Each environment's extras for Algorithm 1 (its encoder, a probe of M, its true dynamics), by
+entry point: :mod:`imagine.learning.extras`."""

@@ -35,14 +35,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from imagine import ENV_ID
 from imagine.checkpoint import load_state_dict_strict, read_json
 from imagine.config import AgentConfig, from_dict
-from imagine.envs.gesture_puzzle import make_composer
-from imagine.envs.gesture_puzzle.encoders import OracleEncoder, StandardizedEncoder, VaeEncoder
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
 from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint, save_agent
+from imagine.learning.extras import extras_of
 from imagine.learning.population import new_networks
 from imagine.models.controller import Controller
 from imagine.models.encoders import ImageEncoder, OneHotEncoder, VectorEncoder
@@ -50,21 +48,10 @@ from imagine.models.world_model import WorldModel
 
 
 def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
-    """What C and M see: ``config.encoder``, in ``config.latent_space``; for an environment
-    other than GesturePuzzle, the encoder its observation space calls for."""
-    if config.env != ENV_ID:
-        return generic_encoder(config, device)
-    if config.encoder not in ("vae", "oracle"):
-        raise ConfigError(f"agent.encoder {config.encoder} is not for {ENV_ID}: use vae or oracle")
-    if config.encoder == "oracle":
-        encoder = OracleEncoder(sigma=config.oracle_sigma)
-    elif config.vae_run is None:
-        raise ConfigError(
-            "agent.encoder is vae but no V run was given (--vae RUN or encoder=oracle)"
-        )
-    else:
-        encoder = VaeEncoder(config.vae_run, make_composer(), device=device)
-    return StandardizedEncoder(encoder) if config.latent_space == "standardized" else encoder
+    """What C and M see: the environment's own encoder where it has one (GesturePuzzle: V or
+    the oracle, :mod:`imagine.learning.extras`), else the one its observation space calls for."""
+    own = extras_of(config.env).make_encoder
+    return own(config, device) if own is not None else generic_encoder(config, device)
 
 
 ENCODER_OF_KIND = {"vector": "vector", "discrete": "onehot", "image": "vae"}

@@ -31,7 +31,7 @@ import torch
 
 from imagine.models.controller import PopulationController
 from imagine.models.stacked import agent_normal
-from imagine.models.world_model import PopulationWorldModel
+from imagine.models.world_model import PopulationWorldModel, Prediction
 
 FIELDS = ("z", "action", "next_z", "reward", "done", "disagreement", "rollout", "step")
 """What a rollout hands back per transition: M_I's fields, the members' disagreement, and
@@ -113,3 +113,26 @@ def imagine_rollouts(
         else {key: value[:, i][mask[:, i]] for key, value in zip(FIELDS, stacked, strict=True)}
         for i, generator in enumerate(generators)
     ]
+
+
+class SplitModel:
+    """Imagination's next state from one M, its reward from another and its end from a third:
+    the diagnostics ``imagination_model: true_reward`` (the learned M's next state, the rules'
+    reward and end), ``true_end`` (the learned next state and reward, the rules' end) and
+    ``true_state`` (the rules' next state as its mean latent, the learned r- and d-networks),
+    which tell which part of a learned M costs the agent what."""
+
+    def __init__(self, state_from, reward_from, end_from=None) -> None:
+        self.state_from, self.reward_from = state_from, reward_from
+        self.end_from = reward_from if end_from is None else end_from
+
+    def predict(
+        self, z, action, generators=(), draw: str = "mode", temperature: float = 1.0
+    ) -> Prediction:
+        return self.state_from.predict(z, action, generators, draw, temperature)
+
+    def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
+        return self.end_from.is_terminal(z)
+
+    def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.reward_from.predict_reward(z)

@@ -36,9 +36,9 @@ from imagine.checkpoint import (
     load_state_dict_strict,
 )
 from imagine.config import AgentConfig
-from imagine.envs.gesture_puzzle.true_model import SplitModel, TrueLatentModel
 from imagine.envs.spec import EnvSpec, make_spec
 from imagine.errors import CheckpointError, ConfigError
+from imagine.learning.extras import extras_of
 from imagine.learning.gate import (
     TRUST_RECENT,
     ModelTrust,
@@ -46,7 +46,7 @@ from imagine.learning.gate import (
     one_step_right,
     support_distance,
 )
-from imagine.learning.imagination import imagine_rollouts, posterior_scale
+from imagine.learning.imagination import SplitModel, imagine_rollouts, posterior_scale
 from imagine.learning.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.learning.value_expansion import expanded_target
 from imagine.models.controller import Controller, PopulationController, epsilon
@@ -124,13 +124,13 @@ class Population:
         self.envs = self.spec.make_vector_env(P)
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
         if c.imagination_model != "learned":
-            if not hasattr(self.envs, "composer"):
+            true_model = extras_of(c.env).true_model
+            if true_model is None:
                 raise ConfigError(
-                    f"agent.imagination_model {c.imagination_model} imagines with GesturePuzzle's "
-                    f"rules; {self.spec.env_id} has none"
+                    f"agent.imagination_model {c.imagination_model} imagines with the "
+                    f"environment's own dynamics; {self.spec.env_id} has none"
                 )
-            rules = TrueLatentModel(encoder, self.envs.composer, c.task, c.seed,
-                                    fresh=c.imagination_model == "true")  # fmt: skip
+            rules = true_model(encoder, self.envs, c)
             self.imagined_by = {"true_reward": SplitModel(self.model, rules),
                                 "true_end": SplitModel(self.model, self.model, rules),
                                 "true_state": SplitModel(rules, self.model)}.get(

@@ -21,14 +21,13 @@ import numpy as np
 import torch
 import yaml
 
-from imagine import ENV_ID
 from imagine.checkpoint import atomic_write_text
 from imagine.config import AgentConfig
 from imagine.devices import resolve_device
-from imagine.envs.gesture_puzzle.evaluation import model_accuracy
 from imagine.errors import ConfigError, Interrupted, NumericalError
 from imagine.learning.agent import Agent, check_folder, make_encoder, saved_config
 from imagine.learning.agent_checkpoint import load_checkpoint, save_checkpoint, start_dynamics
+from imagine.learning.extras import extras_of
 from imagine.learning.population import Population
 from imagine.metrics import MetricsLogger
 from imagine.stopping import StopSignals
@@ -138,14 +137,10 @@ def _after_episode(
     """Agent i's episode just ended: accuracy, metrics row, checkpoint, stop at its budget."""
     config = population.configs[i]
     e = population.episode[i]
-    probe = population.spec.env_id == ENV_ID  # M's accuracy over GesturePuzzle's 192 x 6
+    probe = extras_of(config.env).model_probe  # GesturePuzzle: M over its 192 x 6
     if probe and population.config.trains_model and e % config.accuracy_every == 0:
         _, model = population.networks(i)
-        accuracy = model_accuracy(
-            model, population.encoder, config.task, config.hand_switch_prob,
-            config.imagination_temperature,
-        )  # fmt: skip
-        for key, value in accuracy.items():
+        for key, value in probe(model, population.encoder, config).items():
             logger.record(f"model/{key}_accuracy", value)
     if e % config.log_every == 0 or population.finished(i):
         for key, values in window.items():

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from imagine.envs.spec import EnvSpec
+from imagine.envs.spec import EnvSpec, episode_seed
 
 VAE_SIZE = 64
 
@@ -37,8 +37,6 @@ def random_frames(spec: EnvSpec, n: int, seed: int, copies: int = 16) -> np.ndar
     """``n`` observations (as the encoder reads them) of a uniform random policy, resized for
     V: uint8 (n, 64, 64, 3). Episode k of the collection starts from a seed drawn from
     (``seed``, k)."""
-    from imagine.envs.spec import episode_seed
-
     rng = np.random.default_rng(seed)
     envs = spec.make_vector_env(copies)
     started = copies

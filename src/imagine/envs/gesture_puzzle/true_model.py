@@ -68,26 +68,3 @@ class TrueLatentModel:
     def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
         r = torch.as_tensor(rewards(self._states(z), self.task), dtype=torch.float32)
         return r.to(z.device).view(z.shape[:-1])
-
-
-class SplitModel:
-    """Imagination's next state from one M, its reward from another and its end from a third:
-    the diagnostics ``imagination_model: true_reward`` (the learned M's next state, the rules'
-    reward and end), ``true_end`` (the learned next state and reward, the rules' end) and
-    ``true_state`` (the rules' next state as its mean latent, the learned r- and d-networks),
-    which tell which part of a learned M costs the agent what."""
-
-    def __init__(self, state_from, reward_from, end_from=None) -> None:
-        self.state_from, self.reward_from = state_from, reward_from
-        self.end_from = reward_from if end_from is None else end_from
-
-    def predict(
-        self, z, action, generators=(), draw: str = "mode", temperature: float = 1.0
-    ) -> Prediction:
-        return self.state_from.predict(z, action, generators, draw, temperature)
-
-    def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
-        return self.end_from.is_terminal(z)
-
-    def predict_reward(self, z: torch.Tensor) -> torch.Tensor:
-        return self.reward_from.predict_reward(z)
