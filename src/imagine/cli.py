@@ -737,6 +737,14 @@ def reproduce_study(
     ] = False,
     device: DeviceOption = "auto",
     set_: SetOption = None,
+    baselines: Annotated[
+        str,
+        typer.Option(
+            metavar="BASELINES",
+            help="Peer baselines beside ours: sb3 (Stable-Baselines3's DQN, pip install "
+            "'imagine[sb3]'; skipped in one line without it).",
+        ),
+    ] = "",
 ) -> None:
     """The paper's section V in one command; run it again to resume.
 
@@ -758,6 +766,7 @@ def reproduce_study(
         budgets=numbers(budgets, "budgets"), backend=backend, workers=workers, address=address,
         vae_run=None if vae is None else str(vae), oracle=oracle, separate_runs=separate_runs,
         overrides=parse_assignments(set_ or []), device=device,
+        baselines=tuple(b.strip() for b in baselines.split(",") if b.strip()),
     )  # fmt: skip
     if len(config.seeds) == 1 and config.seeds[0] > 1:  # `--seeds 5` once meant five seeds
         console.print(f"note: --seeds {seeds} is seed {config.seeds[0]} alone; five seeds are "

@@ -22,6 +22,8 @@ from scipy import stats
 from imagine.checkpoint import atomic_write_text, save_figure
 
 METHODS = ("baseline", "augmented")
+PEER = "sb3-dqn"
+"""A peer baseline's method name (:mod:`imagine.study.peer`): a column where a study has it."""
 
 PAPER_TABLES: dict[str, dict[int, tuple[float, float, float, float]]] = {
     # budget: (baseline mean, std, augmented mean, std), success % (paper Tables I and II)
@@ -63,7 +65,7 @@ def summarize(evaluations: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ):  # fmt: skip
         x = np.array(values)
         iqm, low, high = iqm_interval(x)
-        paper = PAPER_TABLES.get(task, {}).get(budget)
+        paper = PAPER_TABLES.get(task, {}).get(budget) if method in METHODS else None
         offset = 0 if method == "baseline" else 2
         rows.append({
             "task": task, "budget": budget, "method": method, "n": len(x),
@@ -84,10 +86,13 @@ def markdown_table(task: str, rows: list[dict[str, Any]], random_success: float)
     """Table I (original) or II (hard): ours beside the paper's."""
     cell = {(r["budget"], r["method"]): r for r in rows if r["task"] == task}
     budgets = sorted({b for b, _ in cell})
+    peer = any(m == PEER for _, m in cell)  # SB3's DQN, when the study has it
     lines = [
         "| Episodes | Base DQN | Augmented | % increase | IQM base [95% CI] | "
-        "IQM augmented [95% CI] | paper base | paper augmented | paper % increase |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "IQM augmented [95% CI] | paper base | paper augmented | paper % increase |"
+        + (" SB3 DQN | IQM SB3 DQN [95% CI] |" if peer else ""),
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+        + (" --- | --- |" if peer else ""),
     ]
     for budget in budgets:
         base, aug = cell.get((budget, "baseline")), cell.get((budget, "augmented"))
@@ -100,10 +105,15 @@ def markdown_table(task: str, rows: list[dict[str, Any]], random_success: float)
         if paper:
             theirs = [f"{paper[0]:.2f} ({paper[1]:.2f})", f"{paper[2]:.2f} ({paper[3]:.2f})",
                       f"{increase(paper[0], paper[2]):.2f}"]  # fmt: skip
+        if peer:
+            r = cell.get((budget, PEER))
+            theirs += ([f"{r['mean']:.2f} ({r['std']:.2f})",
+                        f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]"]
+                       if r else ["-", "-"])  # fmt: skip
         lines.append(f"| {budget} | {' | '.join([*ours, gain, *iqms, *theirs])} |")
     lines.append(
         f"| random agent | {100 * random_success:.2f} | | | | | "
-        f"{PAPER_RANDOM.get(task, math.nan):.2f} | | |"
+        f"{PAPER_RANDOM.get(task, math.nan):.2f} | | |" + (" | |" if peer else "")
     )
     return "\n".join(lines) + "\n"
 
@@ -259,7 +269,8 @@ def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
     fig = Figure(figsize=(5.5 * len(tasks), 4), layout="constrained")
     for i, task in enumerate(tasks):
         ax = fig.add_subplot(1, len(tasks), i + 1)
-        for method, color in zip(METHODS, ("tab:blue", "tab:red"), strict=True):
+        for method, color in zip((*METHODS, PEER), ("tab:blue", "tab:red", "tab:green"),
+                                 strict=True):  # fmt: skip
             mine = sorted((r["budget"], r["mean"], r["iqm"], r["iqm_low"], r["iqm_high"])
                           for r in rows if r["task"] == task and r["method"] == method)  # fmt: skip
             if mine:
@@ -267,7 +278,7 @@ def success_figure(rows: list[dict[str, Any]], out: Path) -> Path:
                 ax.plot(b, iqm, color=color, label=f"{method}, IQM and 95% CI")
                 ax.fill_between(b, low, high, color=color, alpha=0.2)
                 ax.plot(b, m, color=color, ls="none", marker="o", ms=3, label=f"{method}, mean")
-            paper = PAPER_TABLES.get(task, {})
+            paper = PAPER_TABLES.get(task, {}) if method in METHODS else {}
             if paper:
                 k = 0 if method == "baseline" else 2
                 pb = sorted(paper)

@@ -29,6 +29,7 @@ from imagine.config import (
 )
 from imagine.errors import ConfigError
 from imagine.study.experiments import (
+    EVAL_SEED,
     Job,
     LocalRunner,
     RayRunner,
@@ -36,6 +37,7 @@ from imagine.study.experiments import (
     load_evaluations,
     study_jobs,
 )
+from imagine.study.peer import BASELINES, peer_evaluations, run_peers
 from imagine.study.report import (
     accuracy_figure,
     claims,
@@ -91,6 +93,9 @@ class StudyConfig:
     device: str = "auto"
     """Where V and the populations train: auto (CUDA when there is one), cpu or cuda; stored
     resolved (cpu or cuda), so a study resumes on the kind of device it began on."""
+    baselines: tuple[str, ...] = ()
+    """Peer baselines beside ours (:mod:`imagine.study.peer`): ``sb3``, Stable-Baselines3's DQN
+    on the same task, budgets and test episodes."""
 
     def __post_init__(self) -> None:
         from imagine.envs.gesture_puzzle.rules import TASKS
@@ -111,6 +116,11 @@ class StudyConfig:
                 )
         if not self.budgets or min(self.budgets) < 1:
             raise ConfigError(f"budgets must be positive episode counts, got {self.budgets}")
+        for baseline in self.baselines:
+            if baseline not in BASELINES:
+                raise ConfigError(
+                    f"unknown baseline {baseline!r}; choose from {', '.join(BASELINES)}"
+                )
         if self.backend not in ("local", "ray"):
             raise ConfigError(f"unknown backend {self.backend!r}; choose local or ray")
         from imagine.devices import resolve_device
@@ -126,9 +136,9 @@ class StudyConfig:
 
 def same_study(saved: dict[str, Any], config: StudyConfig) -> bool:
     """Whether a study folder's ``study.yaml`` (``saved``) is ``config``'s study: the same
-    settings but for how it runs (backend, workers, address). An older file's seed count n
-    reads as seeds 0..n-1."""
-    keep = ("backend", "workers", "address")
+    settings but for how it runs (backend, workers, address) and its peer baselines. An older
+    file's seed count n reads as seeds 0..n-1; an older file has no baselines."""
+    keep = ("backend", "workers", "address", "baselines")  # peers never change our runs
     saved = dict(saved)
     if isinstance(saved.get("seeds"), int):
         saved["seeds"] = list(range(saved["seeds"]))
@@ -185,6 +195,8 @@ def deviations(preset: str) -> list[str]:
 def write_report(config: StudyConfig, out: Path, jobs: list[Job], failures: list[str]) -> Path:
     """Tables, figures and REPORT.md from whatever evaluations exist."""
     evaluations = load_evaluations(jobs)
+    if config.baselines:
+        evaluations += peer_evaluations(out, config.tasks, config.seeds, config.budgets)
     if not evaluations:
         raise ConfigError(f"no finished evaluations in {out / 'runs'} to report")
     rows = summarize(evaluations)
@@ -317,4 +329,7 @@ def _run_study(
             else RayRunner(config.workers, config.address, str(out / "ray"), config.device)
         )
         runner.run(todo, on_start or (lambda job: None), done)
+    agent = agent_preset(config.preset, **config.overrides)
+    run_peers(config.baselines, out, config.tasks, config.seeds, config.budgets,
+              agent.eval_episodes, EVAL_SEED, agent.hand_switch_prob, log)  # fmt: skip
     return write_report(config, out, jobs, failures), failures

@@ -3,6 +3,8 @@ all 192 x 6 true transitions (DESIGN.md section 3)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
@@ -39,6 +41,25 @@ def greedy_success(
     hand_switch_prob: float = 0.0,
 ) -> dict[str, float]:
     """Run ``episodes`` greedy test episodes at once; success = the episode reached a goal."""
+    return policy_success(
+        lambda obs, states: greedy_actions(controller, encoder, obs, states), task, episodes,
+        seed, composer, hand_switch_prob,
+    )  # fmt: skip
+
+
+@torch.no_grad()
+def policy_success(
+    policy: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    task: str,
+    episodes: int,
+    seed: int,
+    composer=None,
+    hand_switch_prob: float = 0.0,
+) -> dict[str, float]:
+    """``episodes`` test episodes at once of any ``policy`` (images (N, 64, 64, 3) and true
+    macrostates (N, 4) -> actions (N,)): success rate with its 95% Wilson interval, mean
+    return with its 95% interval. Episode k starts from ``seed + k`` as in :func:`greedy_success`,
+    so every agent (ours or a peer's) meets the same test episodes."""
     envs = GesturePuzzleVectorEnv(
         episodes, task=task, fragments=None if composer is None else composer.pool,
         autoreset_mode=AutoresetMode.SAME_STEP, hand_switch_prob=hand_switch_prob,
@@ -51,7 +72,7 @@ def greedy_success(
     actions = np.zeros(episodes, dtype=np.int64)
     while running.any():
         live = np.flatnonzero(running)  # only episodes still running need V and C
-        actions[live] = greedy_actions(controller, encoder, obs[live], states[live])
+        actions[live] = policy(obs[live], states[live])
         obs, reward, terminated, truncated, info = envs.step(actions)
         returns += np.where(running, reward, 0.0)
         success |= running & (reward == REWARD_GOAL)
