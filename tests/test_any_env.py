@@ -3,6 +3,7 @@ suite (tests/toy_envs.py) train end to end, beat a random agent, stop at differe
 population, resume exactly, and bad environments get one-line errors."""
 
 import dataclasses
+import sys
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from imagine.envs.gym import GymSpec
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
 from imagine.learning.agent import Agent, load_agent
-from imagine.learning.extras import EnvExtras
+from imagine.learning.extras import EnvExtras, extras_of, register_extras
 from imagine.learning.test_episodes import greedy_policy, random_policy, run_episodes
 from imagine.learning.training import train_population
 
@@ -63,6 +64,10 @@ def test_toy_env_agent_beats_random(tmp_path, env, encoder, method):
     )
     with pytest.raises(CheckpointError, match="saved agent"):  # not a run to resume
         train_population([config], [saved], threads=1)
+    before = (tmp_path / "run" / "agent.json").read_bytes()
+    with pytest.raises(CheckpointError, match="holds a training run"):  # never over a run
+        loaded.save(tmp_path / "run")
+    assert (tmp_path / "run" / "agent.json").read_bytes() == before
 
 
 def test_population_agents_stop_apart_and_equal_alone(tmp_path):
@@ -136,14 +141,28 @@ LINE_EXTRAS = EnvExtras(model_probe=line_probe)
 def test_an_environment_registers_its_own_extras(tmp_path, monkeypatch):
     """A user's environment names its extras by entry point (as GesturePuzzle does): its probe
     of M is logged with the metrics; without extras there is none."""
-    monkeypatch.setitem(imagine.EXTRAS, LINE, "test_any_env:LINE_EXTRAS")
+    monkeypatch.setattr(imagine, "EXTRAS", dict(imagine.EXTRAS))  # this test's registry
+    PROBED.clear()
+    register_extras(LINE, "test_any_env:LINE_EXTRAS")
     config = toy_config(method="augmented", steps=150, accuracy_every=5, log_every=5)
     train_population([config], [tmp_path / "probed"], threads=1)
     header = (tmp_path / "probed" / "metrics.csv").read_text().splitlines()[0]
     assert "model/right_from_start_accuracy" in header and PROBED == [LINE] * len(PROBED) != []
-    monkeypatch.setitem(imagine.EXTRAS, LINE, "test_any_env:line_probe")
+    register_extras(LINE, "test_any_env:line_probe")
     with pytest.raises(ConfigError, match="is not an EnvExtras"):
         train_population([config], [tmp_path / "bad"], threads=1)
+    # an env named module:Id finds the extras its module registers on import (as Gymnasium
+    # imports it to find the env), under Id or module:Id
+    (tmp_path / "user_env.py").write_text(
+        "from imagine.learning.extras import EnvExtras, register_extras\n"
+        "EXTRAS = EnvExtras(model_probe=lambda model, encoder, config: {'x': 1.0})\n"
+        "register_extras('UserLine-v0', 'user_env:EXTRAS')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "user_env", raising=False)
+    assert extras_of("user_env:UserLine-v0").model_probe is not None
+    assert extras_of("UserLine-v0").model_probe is not None
+    assert extras_of(LINE_DISCRETE).model_probe is None  # an env without extras
 
 
 def test_wrappers_apply_in_order():

@@ -40,6 +40,12 @@ def layer(module: str) -> int:
     return LAYER.get(parts[1], 0) if len(parts) > 1 else 0
 
 
+def is_module(name: str) -> bool:
+    """Whether a dotted name is a module or package of imagine (not a name inside one)."""
+    path = PACKAGE.parent / name.replace(".", "/")
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
 def imports() -> dict[str, set[str]]:
     """Every module's imports of other imagine modules, wherever in the file they are."""
     graph = {}
@@ -50,11 +56,7 @@ def imports() -> dict[str, set[str]]:
             if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 for a in node.names:  # `from P import m` of a submodule m imports P.m
                     sub = f"{node.module}.{a.name}"
-                    found.add(
-                        sub
-                        if (PACKAGE.parent / sub.replace(".", "/")).with_suffix(".py").is_file()
-                        else node.module
-                    )
+                    found.add(sub if is_module(sub) else node.module)
             elif isinstance(node, ast.Import):
                 found.update(a.name for a in node.names)
         graph[name] = {m for m in found if m.startswith("imagine")}

@@ -41,7 +41,16 @@ def save_checkpoint(
 
 
 def save_agent(folder: Path, tensors: dict[str, torch.Tensor], values: dict[str, Any]) -> Path:
-    """Write a saved agent (:data:`SAVED_FORMAT`): its networks' tensors and its values."""
+    """Write a saved agent (:data:`SAVED_FORMAT`): its networks' tensors and its values; an
+    error, before anything is written, if ``folder`` holds a training run (it would lose the
+    memories and optimizers it resumes from)."""
+    meta_path = folder / "agent.json"
+    if meta_path.is_file():
+        meta = read_json(meta_path, "agent checkpoint metadata")
+        if not isinstance(meta, dict) or meta.get("format") != SAVED_FORMAT:
+            raise CheckpointError(
+                f"{folder} holds a training run; save the agent into another folder"
+            )
     folder.mkdir(parents=True, exist_ok=True)
     save_tensors(folder / "agent.safetensors", tensors)
     write_json(folder / "agent.json", {"format": SAVED_FORMAT, **values})

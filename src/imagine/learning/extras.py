@@ -42,8 +42,16 @@ def register_extras(env_id: str, entry_point: str) -> None:
 
 
 def extras_of(env_id: str) -> EnvExtras:
-    """The extras of an environment (:data:`NO_EXTRAS` if it has none)."""
-    entry_point = imagine.EXTRAS.get(env_id)
+    """The extras of an environment (:data:`NO_EXTRAS` if it has none). For ``module:Id``
+    the module is imported first, as ``gymnasium.make`` does, so extras it registers on import
+    are found, under ``module:Id`` or ``Id``."""
+    module, colon, bare = env_id.partition(":")
+    if colon:
+        try:
+            importlib.import_module(module)
+        except ImportError as e:
+            raise ConfigError(f"cannot import {module} (of environment {env_id}): {e}") from None
+    entry_point = imagine.EXTRAS.get(env_id) or (imagine.EXTRAS.get(bare) if colon else None)
     if entry_point is None:
         return NO_EXTRAS
     module, _, name = entry_point.partition(":")
