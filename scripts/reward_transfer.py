@@ -63,18 +63,21 @@ def table(study: Path, out: Path, seeds: list[int], budgets: list[int]) -> str:
         "M from original": [[success(out / f"seed-{s}" / f"evaluation-{b}.json") for b in budgets]
                             for s in seeds],
     }  # fmt: skip
-    lines = ["| hard, augmented | " + " | ".join(f"{b} episodes" for b in budgets)
-             + " | episodes to 90% (mean curve) |",
-             "| --- " * (len(budgets) + 2) + "|"]  # fmt: skip
-    for arm, curves in arms.items():
-        x = np.array(curves)
+    names = list(arms)
+    x = {arm: np.array(curves) for arm, curves in arms.items()}
+    lines = ["| hard, augmented: episodes | " + " | ".join(
+                 f"{arm}: mean (std) | IQM [95% CI]" for arm in names) + " |",
+             "| --- " * (1 + 2 * len(names)) + "|"]  # fmt: skip
+    for j, b in enumerate(budgets):
         cells = []
-        for j in range(len(budgets)):
-            iqm, low, high = iqm_interval(x[:, j])
-            cells.append(f"{x[:, j].mean():.1f} ({x[:, j].std(ddof=1):.1f}); "
-                         f"IQM {iqm:.1f} [{low:.1f}, {high:.1f}]")  # fmt: skip
-        first = first_reaching(budgets, list(x.mean(0)), 90.0)
-        lines.append(f"| {arm} | " + " | ".join(cells) + f" | {first or f'> {budgets[-1]}'} |")
+        for arm in names:
+            v = x[arm][:, j]
+            iqm, low, high = iqm_interval(v)
+            cells += [f"{v.mean():.1f} ({v.std(ddof=1):.1f})", f"{iqm:.1f} [{low:.1f}, {high:.1f}]"]
+        lines.append(f"| {b} | " + " | ".join(cells) + " |")
+    firsts = [first_reaching(budgets, list(x[arm].mean(0)), 90.0) for arm in names]
+    lines.append("| episodes to 90% (mean curve) | " + " | ".join(
+        f"{f or f'> {budgets[-1]}'} | " for f in firsts) + "|")  # fmt: skip
     return "\n".join(lines)
 
 
