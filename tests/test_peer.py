@@ -38,14 +38,14 @@ def test_baselines_are_checked_and_do_not_change_the_study():
 
 
 def test_without_sb3_the_row_is_skipped_in_one_line(tmp_path, monkeypatch):
-    monkeypatch.setattr(peer, "available", lambda: False)
+    monkeypatch.setattr(peer, "sb3_available", lambda: False)
     lines = []
     peer.run_peers(("sb3",), tmp_path, ("hard",), (0,), (10,), 20, 0, log=lines.append)
     assert len(lines) == 1 and "pip install 'imagine[sb3]'" in lines[0]
     assert not (tmp_path / "sb3-dqn").exists()
 
 
-@pytest.mark.skipif(not peer.available(), reason="Stable-Baselines3 is not installed")
+@pytest.mark.skipif(not peer.sb3_available(), reason="Stable-Baselines3 is not installed")
 def test_sb3_learns_on_gesture_puzzle_and_is_judged_on_our_test_episodes(tmp_path):
     """SB3's DQN trains by episodes, is evaluated as its episode count passes each budget, in
     our evaluations' format; a finished budget is not run again."""

@@ -102,6 +102,7 @@ class Population:
         self.config = c = configs[0]
         self.encoder = encoder
         self.spec = spec if spec is not None else make_spec(c)
+        self.extras = extras_of(c.env)  # its encoder, probe of M, true model, if any
         self.n_actions = self.spec.n_actions
         self.device = torch.device(device)
         self.size = P = len(configs)
@@ -124,7 +125,7 @@ class Population:
         self.envs = self.spec.make_vector_env(P)
         self.imagined_by = self.model  # what imagination rolls out (imagination_model)
         if c.imagination_model != "learned":
-            true_model = extras_of(c.env).true_model
+            true_model = self.extras.true_model
             if true_model is None:
                 raise ConfigError(
                     f"agent.imagination_model {c.imagination_model} imagines with the "

@@ -27,7 +27,6 @@ from imagine.devices import resolve_device
 from imagine.errors import ConfigError, Interrupted, NumericalError
 from imagine.learning.agent import Agent, check_folder, make_encoder, saved_config
 from imagine.learning.agent_checkpoint import load_checkpoint, save_checkpoint, start_dynamics
-from imagine.learning.extras import extras_of
 from imagine.learning.population import Population
 from imagine.metrics import MetricsLogger
 from imagine.stopping import StopSignals
@@ -137,7 +136,7 @@ def _after_episode(
     """Agent i's episode just ended: accuracy, metrics row, checkpoint, stop at its budget."""
     config = population.configs[i]
     e = population.episode[i]
-    probe = extras_of(config.env).model_probe  # GesturePuzzle: M over its 192 x 6
+    probe = population.extras.model_probe  # GesturePuzzle: M over its 192 x 6
     if probe and population.config.trains_model and e % config.accuracy_every == 0:
         _, model = population.networks(i)
         for key, value in probe(model, population.encoder, config).items():

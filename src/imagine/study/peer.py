@@ -28,19 +28,11 @@ import gymnasium as gym
 from imagine import ENV_ID
 from imagine.checkpoint import read_json, write_json
 from imagine.envs.gesture_puzzle.rules import MAX_EPISODE_ACTIONS
+from imagine.study.compare import sb3_available
 
 METHOD = "sb3-dqn"
 BASELINES = ("sb3",)
 """Peer baselines ``imagine reproduce --baselines`` can add."""
-
-
-def available() -> bool:
-    """Whether Stable-Baselines3 is installed."""
-    try:
-        import stable_baselines3  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def evaluation_path(folder: Path, budget: int) -> Path:
@@ -124,7 +116,7 @@ def run_peers(
     """Train and evaluate the asked peer baselines (or say in one line why not)."""
     if "sb3" not in baselines:
         return
-    if not available():
+    if not sb3_available():
         log("sb3-dqn row skipped: Stable-Baselines3 is not installed (pip install 'imagine[sb3]')")
         return
     for task in tasks:
