@@ -1,0 +1,130 @@
+"""A stochastic human (issue 16): after each action the hand moves to another cube with
+probability p. Does M's mixture learn the hand's probabilities, and what does that do to the
+agents? Per p, four arms on one task, each a population of the same seeds, evaluated on the
+same 1000 test episodes (with the same p) at every budget:
+
+- ``baseline``: C on real transitions only;
+- ``augmented``: the fast preset's augmented agent (imagination hands C M's most likely next
+  state, so an imagined hand never moves);
+- ``component``: the same with ``imagination_draw=component`` (a component drawn by its
+  weight, then its mean: the hand moves as often as M's mixture says);
+- ``one-component``: ``augmented`` with a one-component M (``n_components=1``), the control:
+  a unimodal M has one next state per (state, action).
+
+Trains ``OUT/p<p>/<arm>/seed-N`` through the budgets (two populations at a time, resumable;
+what exists is skipped), then prints per p the success table (mean (std) and IQM [95%
+bootstrap CI]) and, at the last budget, M's accuracy and its calibration (``hand_calibration``:
+the weight M's mixture puts on the hand kept, moved to either other cube or a wrong state, over
+every transition from a non-terminal state, against the truth 1 - p, p/2, p/2)::
+
+    .venv/bin/python scripts/stochastic_human.py runs/human --vae runs/vae-fast --ps 0.3,0.1 \\
+        --seeds 0-4 --budgets 1000,2000,4000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from imagine.config import parse_seeds
+from imagine.study.experiments import Job, LocalRunner
+from imagine.study.report import iqm_interval
+
+ARMS: dict[str, tuple[str, tuple[tuple[str, object], ...]]] = {
+    "baseline": ("baseline", ()),
+    "augmented": ("augmented", ()),
+    "component": ("augmented", (("imagination_draw", "component"),)),
+    "one-component": ("augmented", (("n_components", 1),)),
+}
+
+
+def human_jobs(out: Path, vae: Path, task: str, ps: list[float], arms: list[str],
+               seeds: list[int], budgets: list[int]) -> list[Job]:  # fmt: skip
+    """Every (p, arm, seed) job, p by p, arm by arm (populations run in this order)."""
+    return [
+        Job(str(out / f"p{p}" / arm / f"seed-{s}"), task, ARMS[arm][0], s, tuple(budgets),
+            vae_run=str(vae), overrides=(("hand_switch_prob", p), *ARMS[arm][1]))
+        for p in ps for arm in arms for s in seeds
+    ]  # fmt: skip
+
+
+def read(job: Job, budget: int) -> dict | None:
+    path = job.evaluation_path(budget)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]) -> str:
+    """Per p: success by budget and arm; M's accuracy and calibration at the last budget."""
+    text = []
+    for p in ps:
+        mine = {arm: [j for j in jobs if dict(j.overrides)["hand_switch_prob"] == p
+                      and Path(j.folder).parent.name == arm] for arm in arms}  # fmt: skip
+        text += [f"### p = {p}", "", "| arm | " + " | ".join(
+            f"{b}: mean (std) | {b}: IQM [95% CI]" for b in budgets) + " |",
+            "| --- " * (1 + 2 * len(budgets)) + "|"]  # fmt: skip
+        for arm in arms:
+            cells = []
+            for b in budgets:
+                v = np.array([100 * e["success"] for j in mine[arm] if (e := read(j, b))])
+                if len(v) == 0:
+                    cells += ["-", "-"]
+                    continue
+                iqm, low, high = iqm_interval(v)
+                std = f"{v.std(ddof=1):.1f}" if len(v) > 1 else "-"
+                n = "" if len(v) == len(mine[arm]) else f", {len(v)} seeds"
+                cells += [f"{v.mean():.1f} ({std}{n})", f"{iqm:.1f} [{low:.1f}, {high:.1f}]"]
+            text.append(f"| {arm} | " + " | ".join(cells) + " |")
+        text += ["", f"M at {budgets[-1]} episodes, mean over seeds: its most likely next state "
+                 "right (hand kept), a sample right (arrows), samples that keep the hand "
+                 f"(truth {1 - p:.2f}); the mixture's weight on each hand outcome (truth "
+                 f"{1 - p:.2f} / {p / 2:.2f} / {p / 2:.2f} / 0) and its total variation from "
+                 "the truth.", "",
+                 "| arm | most likely | sample | sample keeps hand | kept | moved next | "
+                 "moved previous | wrong | TV |", "| --- " * 9 + "|"]  # fmt: skip
+        for arm in arms:
+            evaluations = [e for j in mine[arm] if (e := read(j, budgets[-1]))]
+            evaluations = [e for e in evaluations if e.get("model_accuracy")]
+            if not evaluations:
+                continue
+            acc = {k: np.mean([e["model_accuracy"][k] for e in evaluations]) for k in
+                   ("transition_nonterminal", "transition_sampled", "hand_kept_sampled")}
+            cal = {k: np.mean([e["hand_calibration"][k] for e in evaluations]) for k in
+                   ("kept", "moved_next", "moved_previous", "wrong", "total_variation")}
+            text.append(f"| {arm} | " + " | ".join(f"{100 * v:.1f}" for v in acc.values())
+                        + " | " + " | ".join(f"{v:.3f}" for v in cal.values()) + " |")
+        text.append("")
+    return "\n".join(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--vae", type=Path, required=True, help="V run (imagine vae train)")
+    parser.add_argument("--task", default="hard")
+    parser.add_argument("--ps", default="0.3,0.1")
+    parser.add_argument("--arms", default=",".join(ARMS))
+    parser.add_argument("--seeds", default="0-4")
+    parser.add_argument("--budgets", default="1000,2000,4000")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--table-only", action="store_true", help="print what exists")
+    args = parser.parse_args()
+    ps = [float(p) for p in args.ps.split(",")]
+    arms = args.arms.split(",")
+    if unknown := set(arms) - set(ARMS):
+        parser.error(f"unknown arms {sorted(unknown)}; choose from {', '.join(ARMS)}")
+    budgets = sorted(int(b) for b in args.budgets.split(","))
+    jobs = human_jobs(args.out, args.vae, args.task, ps, arms, list(parse_seeds(args.seeds)),
+                      budgets)  # fmt: skip
+    if not args.table_only:
+        LocalRunner(args.workers).run(
+            [j for j in jobs if not j.finished()], lambda job: None,
+            lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
+        )  # fmt: skip
+    print(tables(jobs, ps, arms, budgets))
+
+
+if __name__ == "__main__":
+    main()
