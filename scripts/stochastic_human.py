@@ -42,10 +42,11 @@ ARMS: dict[str, tuple[str, tuple[tuple[str, object], ...]]] = {
 
 
 def human_jobs(out: Path, vae: Path, task: str, ps: list[float], arms: list[str],
-               seeds: list[int], budgets: list[int]) -> list[Job]:  # fmt: skip
-    """Every (p, arm, seed) job, p by p, arm by arm (populations run in this order)."""
+               seeds: list[int], budgets: dict[str, list[int]]) -> list[Job]:  # fmt: skip
+    """Every (p, arm, seed) job, p by p, arm by arm (populations run in this order), each
+    evaluated at its arm's budgets."""
     return [
-        Job(str(out / f"p{p}" / arm / f"seed-{s}"), task, ARMS[arm][0], s, tuple(budgets),
+        Job(str(out / f"p{p}" / arm / f"seed-{s}"), task, ARMS[arm][0], s, tuple(budgets[arm]),
             vae_run=str(vae), overrides=(("hand_switch_prob", p), *ARMS[arm][1]))
         for p in ps for arm in arms for s in seeds
     ]  # fmt: skip
@@ -77,7 +78,9 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
                 n = "" if len(v) == len(mine[arm]) else f", {len(v)} seeds"
                 cells += [f"{v.mean():.1f} ({std}{n})", f"{iqm:.1f} [{low:.1f}, {high:.1f}]"]
             text.append(f"| {arm} | " + " | ".join(cells) + " |")
-        text += ["", f"M at {budgets[-1]} episodes, mean over seeds: its most likely next state "
+        modelled = [j for arm in arms if ARMS[arm][0] == "augmented" for j in mine[arm]]
+        last = max((b for b in budgets for j in modelled if read(j, b)), default=budgets[-1])
+        text += ["", f"M at {last} episodes, mean over seeds: its most likely next state "
                  "right (hand kept), a sample right (arrows), samples that keep the hand "
                  f"(truth {1 - p:.2f}); the mixture's weight on each hand outcome (truth "
                  f"{1 - p:.2f} / {p / 2:.2f} / {p / 2:.2f} / 0) and its total variation from "
@@ -85,16 +88,25 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
                  "| arm | most likely | sample | sample keeps hand | kept | moved next | "
                  "moved previous | wrong | TV |", "| --- " * 9 + "|"]  # fmt: skip
         for arm in arms:
-            evaluations = [e for j in mine[arm] if (e := read(j, budgets[-1]))]
+            evaluations = [e for j in mine[arm] if (e := read(j, last))]
             evaluations = [e for e in evaluations if e.get("model_accuracy")]
             if not evaluations:
                 continue
-            acc = {k: np.mean([e["model_accuracy"][k] for e in evaluations]) for k in
-                   ("transition_nonterminal", "transition_sampled", "hand_kept_sampled")}
-            cal = {k: np.mean([e["hand_calibration"][k] for e in evaluations]) for k in
-                   ("kept", "moved_next", "moved_previous", "wrong", "total_variation")}
-            text.append(f"| {arm} | " + " | ".join(f"{100 * v:.1f}" for v in acc.values())
-                        + " | " + " | ".join(f"{v:.3f}" for v in cal.values()) + " |")
+            acc = {
+                k: np.mean([e["model_accuracy"][k] for e in evaluations])
+                for k in ("transition_nonterminal", "transition_sampled", "hand_kept_sampled")
+            }
+            cal = {
+                k: np.mean([e["hand_calibration"][k] for e in evaluations])
+                for k in ("kept", "moved_next", "moved_previous", "wrong", "total_variation")
+            }
+            text.append(
+                f"| {arm} | "
+                + " | ".join(f"{100 * v:.1f}" for v in acc.values())
+                + " | "
+                + " | ".join(f"{v:.3f}" for v in cal.values())
+                + " |"
+            )
         text.append("")
     return "\n".join(text)
 
@@ -108,6 +120,11 @@ def main() -> None:
     parser.add_argument("--arms", default=",".join(ARMS))
     parser.add_argument("--seeds", default="0-4")
     parser.add_argument("--budgets", default="1000,2000,4000")
+    parser.add_argument(
+        "--baseline-budgets",
+        help="the baseline's, if not --budgets (it is "
+        "cheap: several times faster than an augmented arm)",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--table-only", action="store_true", help="print what exists")
     args = parser.parse_args()
@@ -115,7 +132,9 @@ def main() -> None:
     arms = args.arms.split(",")
     if unknown := set(arms) - set(ARMS):
         parser.error(f"unknown arms {sorted(unknown)}; choose from {', '.join(ARMS)}")
-    budgets = sorted(int(b) for b in args.budgets.split(","))
+    budgets = {arm: sorted(int(b) for b in args.budgets.split(",")) for arm in arms}
+    if args.baseline_budgets and "baseline" in budgets:
+        budgets["baseline"] = sorted(int(b) for b in args.baseline_budgets.split(","))
     jobs = human_jobs(args.out, args.vae, args.task, ps, arms, list(parse_seeds(args.seeds)),
                       budgets)  # fmt: skip
     if not args.table_only:
@@ -123,7 +142,7 @@ def main() -> None:
             [j for j in jobs if not j.finished()], lambda job: None,
             lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
         )  # fmt: skip
-    print(tables(jobs, ps, arms, budgets))
+    print(tables(jobs, ps, arms, sorted({b for arm in arms for b in budgets[arm]})))
 
 
 if __name__ == "__main__":
