@@ -188,24 +188,26 @@ class GesturePuzzleVectorEnv(VectorEnv):
         if self.autoreset_mode == AutoresetMode.SAME_STEP:
             done = terminated | truncated
             self._observe(np.arange(self.num_envs))
-            info = {
-                "final_obs": self._observation(),
-                "final_macrostate": self._states.copy(),
-                "_final_obs": done,
-            }
-            resetting, stepping = done, np.ones(self.num_envs, dtype=bool)
-            self._draw_starts(np.flatnonzero(done))
+            final_obs = self._observation()
+            info = {"final_obs": final_obs, "final_macrostate": self._states.copy(),
+                    "_final_obs": done}  # fmt: skip
+            ended = np.flatnonzero(done)
+            self._draw_starts(ended)
             self._actions[done] = 0
-            self._observe(np.flatnonzero(done))
+            self._observe(ended)
+            obs = final_obs.copy()  # only the ended episodes' observations change
+            obs[ended] = self.composer.observe(self._states[ended], self._fragments[ended])
         elif self.autoreset_mode == AutoresetMode.DISABLED:
             self._observe(np.arange(self.num_envs))
+            obs = self._observation()
         else:
             self._draw_starts(np.flatnonzero(resetting))
             self._actions[resetting] = 0
             self._observe(np.arange(self.num_envs))
             self._autoreset = terminated | truncated
+            obs = self._observation()
         return (
-            self._observation(),
+            obs,
             reward.astype(np.float64),
             terminated,
             truncated,
