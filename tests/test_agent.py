@@ -174,6 +174,7 @@ def test_an_agent_trains_and_is_evaluated_with_a_stochastic_human(tmp_path):
     evaluation = json.loads((run / "evaluation.json").read_text())
     assert 0.0 <= evaluation["model_accuracy"]["hand_kept_sampled"] <= 1.0
     assert 0.0 <= evaluation["hand_calibration"]["total_variation"] <= 1.0
+    assert evaluation["hand_calibration_all"]["transitions"] == 192 * 6
     assert load_agent(run).config.hand_switch_prob == 0.3
     with pytest.raises(ConfigError, match="hand_switch_prob"):
         agent_preset("smoke", hand_switch_prob=1.5)
@@ -216,6 +217,9 @@ def test_hand_calibration_is_zero_for_an_m_with_the_true_probabilities():
     assert calibrated["wrong"] < 1e-6 and calibrated["total_variation"] < 1e-6
     stubborn = hand_calibration(StubM([1.0, 1e-9, 1e-9]), encoder, "hard", p)
     assert abs(stubborn["total_variation"] - p) < 1e-6
+    everywhere = hand_calibration(StubM([1 - p, p / 2, p / 2]), encoder, "hard", p, True)
+    assert everywhere["total_variation"] < 1e-6  # from terminal states too
+    assert (calibrated["transitions"], everywhere["transitions"]) == (396, 192 * 6)
 
 
 def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):

@@ -504,12 +504,14 @@ def evaluate_agent(
     p = agent.config.hand_switch_prob
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
                             hand_switch_prob=p)  # fmt: skip
-    accuracy = imagined = imagined_other = calibration = None
+    accuracy = imagined = imagined_other = calibration = calibration_all = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
         accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p,
                                   agent.config.imagination_temperature)  # fmt: skip
         calibration = hand_calibration(agent.model, agent.encoder, agent.config.task, p)
+        calibration_all = hand_calibration(agent.model, agent.encoder, agent.config.task, p,
+                                           include_terminal=True)  # fmt: skip
         imagined = imagined_accuracy(agent)
         imagined_other = imagined_accuracy(agent, draw=other)
     detection = None if imagined is None else imagined.get("disagreement_auroc")
@@ -518,7 +520,7 @@ def evaluate_agent(
         "after_episodes": agent.episode, **result, "model_accuracy": accuracy,
         "imagined_accuracy": imagined, f"imagined_accuracy_{other}": imagined_other,
         "imagined_disagreement_auroc": detection, "hand_calibration": calibration,
-        "imagined_support_auroc": support})  # fmt: skip
+        "hand_calibration_all": calibration_all, "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes; "
@@ -537,8 +539,10 @@ def evaluate_agent(
         print(f"stochastic human: M's draws keep the hand {accuracy['hand_kept_sampled']:.1%} "
               f"of the time (truth {1 - p:.1%}); its mixture's weight: hand kept "
               "{kept:.1%}, moved {moved_next:.1%} / {moved_previous:.1%} (truth {half:.1%} "
-              "each), wrong state {wrong:.1%}, total variation {total_variation:.3f}"
-              .format(half=p / 2, **calibration))  # fmt: skip
+              "each), wrong state {wrong:.1%}, total variation {total_variation:.3f} "
+              "(from non-terminal states; {all:.3f} over all 192 x 6 transitions)"
+              .format(half=p / 2, all=calibration_all["total_variation"],
+                      **calibration))  # fmt: skip
     from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
     where = "M_R" if from_memory else "new episodes"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "

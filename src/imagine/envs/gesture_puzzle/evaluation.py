@@ -162,17 +162,22 @@ def model_accuracy(
 
 
 @torch.no_grad()
-def hand_calibration(model: WorldModel, encoder, task: str, p: float) -> dict[str, float]:
+def hand_calibration(
+    model: WorldModel, encoder, task: str, p: float, include_terminal: bool = False
+) -> dict[str, float]:
     """How M's mixture divides its probability among the hand's outcomes (issue 16), over
-    every transition from a non-terminal state: each component's weight goes to the outcome
-    its mean shows (read back by the encoder's classifier): the hand kept (truth 1 - p), moved
-    to one of the other two cubes (truth p / 2 each, ``moved_*``: the cube after the pointed
-    one, then the one before), or a wrong state (arrows wrong). ``total_variation``: the mean
-    over transitions of half the summed absolute differences from the truth (0: calibrated)."""
+    every transition from a non-terminal state (the ones M learns from; ``include_terminal``:
+    all 192 x 6, those from terminal states being generalization): each component's weight
+    goes to the outcome its mean shows (read back by the encoder's classifier): the hand kept
+    (truth 1 - p), moved to one of the other two cubes (truth p / 2 each, ``moved_*``: the cube
+    after the pointed one, then the one before), or a wrong state (arrows wrong).
+    ``total_variation``: the mean over transitions of half the summed absolute differences
+    from the truth (0: calibrated); ``transitions``: how many were judged."""
     states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
     actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
-    seen = ~is_terminal(states, task)
-    states, actions = states[seen], actions[seen]
+    if not include_terminal:
+        seen = ~is_terminal(states, task)
+        states, actions = states[seen], actions[seen]
     truth = apply_actions(states, actions)
     z = encoder.state_latents()[torch.as_tensor(macrostate_index(states))]
     was_training = model.training
@@ -195,6 +200,7 @@ def hand_calibration(model: WorldModel, encoder, task: str, p: float) -> dict[st
         "moved_previous": float(mass[:, 2].mean()),
         "wrong": float(wrong.mean()),
         "total_variation": float(0.5 * (np.abs(mass - target).sum(-1) + wrong).mean()),
+        "transitions": len(states),
     }
 
 
