@@ -72,3 +72,14 @@ def make_spec(config) -> EnvSpec:
 def episode_seed(seed: int, k: int) -> int:
     """The reset seed of test episode k."""
     return int(np.random.SeedSequence([seed, k]).generate_state(1)[0])
+
+
+def reset_ended(envs: VectorEnv, ended: np.ndarray, episodes: np.ndarray, seed: int) -> tuple:
+    """Reset the copies of a vector env whose episodes ``ended`` (bool, per copy), copy i into
+    episode ``episodes[i]`` of a collection seeded by ``seed`` (:func:`episode_seed`); the
+    others go on. Test episodes and V's random frames both run copies this way, so episode k
+    is the same whichever copy runs it."""
+    seeds = [
+        episode_seed(seed, int(k)) if e else None for k, e in zip(episodes, ended, strict=True)
+    ]
+    return envs.reset(seed=seeds, options={"reset_mask": ended})

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from imagine.envs.spec import EnvSpec, episode_seed
+from imagine.envs.spec import EnvSpec, episode_seed, reset_ended
 from imagine.intervals import mean_interval, wilson_interval
 
 Policy = Callable[[np.ndarray, Any], np.ndarray]
@@ -59,11 +59,7 @@ def run_episodes(
         k = episode_of[done]
         returns[k], lengths[k], successes[k] = total[done], length[done], won[done]
         episode_of[done] = episode_of.max() + 1 + np.arange(len(done))
-        seeds = [
-            episode_seed(seed, int(k)) if e else None
-            for k, e in zip(episode_of, ended, strict=True)
-        ]
-        obs, info = envs.reset(seed=seeds, options={"reset_mask": ended})
+        obs, info = reset_ended(envs, ended, episode_of, seed)
         done = np.flatnonzero(ended)
         total[done], length[done], won[done] = 0.0, 0, False
     envs.close()

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from imagine.envs.spec import EnvSpec, episode_seed
+from imagine.envs.spec import EnvSpec, episode_seed, reset_ended
 
 VAE_SIZE = 64
 
@@ -50,10 +50,9 @@ def random_frames(spec: EnvSpec, n: int, seed: int, copies: int = 16) -> np.ndar
         obs, _, terminated, truncated, info = envs.step(rng.integers(spec.n_actions, size=copies))
         ended = terminated | truncated
         if ended.any():
-            seeds = [None] * copies
-            for i in np.flatnonzero(ended):
-                seeds[i] = episode_seed(seed, started)
-                started += 1
-            obs, info = envs.reset(seed=seeds, options={"reset_mask": ended})
+            episode_of = np.zeros(copies, dtype=np.int64)
+            episode_of[ended] = started + np.arange(ended.sum())
+            started += int(ended.sum())
+            obs, info = reset_ended(envs, ended, episode_of, seed)
     envs.close()
     return np.concatenate(frames)[:n]
