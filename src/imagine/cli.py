@@ -336,13 +336,14 @@ UNBOUNDED_EPISODES = 1_000_000_000
 def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
     """For an environment other than GesturePuzzle with no encoder chosen: the one its
     observation space calls for (:data:`imagine.learning.agent.ENCODER_OF_KIND`)."""
-    from imagine.envs.gym import GymSpec
+    from imagine.envs.spec import gym_spec
     from imagine.learning.agent import ENCODER_OF_KIND
 
     env = values.get("env", ENV_ID)
     if env == ENV_ID or "encoder" in values:
         return values
-    return {**values, "encoder": ENCODER_OF_KIND[GymSpec(env, values.get("wrappers", [])).kind]}
+    kind = gym_spec(env, tuple(values.get("wrappers", []))).kind
+    return {**values, "encoder": ENCODER_OF_KIND[kind]}
 
 
 @app.command("train")

@@ -10,6 +10,7 @@ so that a run stopped and resumed continues with the same episodes.
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -64,9 +65,16 @@ def make_spec(config) -> EnvSpec:
         from imagine.envs.gesture_puzzle.spec import GesturePuzzleSpec
 
         return GesturePuzzleSpec(config.task, config.hand_switch_prob)
+    return gym_spec(config.env, tuple(config.wrappers))
+
+
+@functools.cache
+def gym_spec(env_id: str, wrappers: tuple[str, ...]) -> EnvSpec:
+    """One GymSpec per (env, wrappers) and process: building it makes a probe env, and a
+    command asks for the spec several times (encoder choice, V, the agent)."""
     from imagine.envs.gym import GymSpec
 
-    return GymSpec(config.env, tuple(config.wrappers))
+    return GymSpec(env_id, wrappers)
 
 
 def episode_seed(seed: int, k: int) -> int:

@@ -57,10 +57,10 @@ def make_data(config: VisionConfig) -> VisionData:
     """The training and test images of a config: its dataset file, another environment's
     frames, or synthesized (deterministically) from the procedural renderer."""
     if config.env is not None:
-        from imagine.envs.gym import GymSpec
+        from imagine.envs.spec import gym_spec
         from imagine.models.frames import random_frames
 
-        spec = GymSpec(config.env, config.env_wrappers)
+        spec = gym_spec(config.env, tuple(config.env_wrappers))
         if spec.kind != "image":
             raise ConfigError(f"{config.env} has {spec.kind} observations: V is for images")
         frames = random_frames(spec, config.n_train + config.n_test, config.data_seed)

@@ -24,7 +24,7 @@ import numpy as np
 
 from imagine.checkpoint import read_json, write_json
 from imagine.config import AgentConfig
-from imagine.envs.gym import GymSpec
+from imagine.envs.spec import gym_spec
 from imagine.errors import NumericalError
 from imagine.learning.test_episodes import greedy_policy, run_episodes
 from imagine.study.report import iqm_interval
@@ -61,7 +61,7 @@ def train_ours(
     """One method's seeds, to each budget in turn, each evaluated there (resumable)."""
     from imagine.learning.training import train_population
 
-    spec = GymSpec(config.env, config.wrappers)
+    spec = gym_spec(config.env, tuple(config.wrappers))
     folders = [out / config.method / f"seed-{s}" for s in seeds]
     for budget in sorted(budgets):
         todo = [i for i, f in enumerate(folders) if not evaluation_path(f, budget).is_file()]
@@ -102,7 +102,7 @@ def train_sb3(
 
     from imagine.envs.gym import make_env
 
-    spec = GymSpec(env_id, wrappers)
+    spec = gym_spec(env_id, tuple(wrappers))
     horizon = max(max(budgets), SB3_ZOO_STEPS.get(env_id, 0))
     # SB3's defaults otherwise, but a replay buffer no larger than the run (its default of 1e6
     # images would take 9 GB for 56 x 56 RGB observations)
