@@ -15,7 +15,8 @@ Trains ``OUT/p<p>/<arm>/seed-N`` through the budgets (two populations at a time,
 what exists is skipped), then prints per p the success table (mean (std) and IQM [95%
 bootstrap CI]) and, at the last budget, M's accuracy and its calibration (``hand_calibration``:
 the weight M's mixture puts on the hand kept, moved to either other cube or a wrong state, over
-every transition from a non-terminal state, against the truth 1 - p, p/2, p/2)::
+every transition from a non-terminal state, against the truth 1 - p, p/2, p/2; also drawn in
+``OUT/calibration.png``)::
 
     .venv/bin/python scripts/stochastic_human.py runs/human --vae runs/vae-fast --ps 0.3,0.1 \\
         --seeds 0-4 --budgets 1000,2000,4000
@@ -126,6 +127,39 @@ def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
             + " | ".join(f"{v:.3f}" for v in calibration) + f" | {tv_all} |")  # fmt: skip
 
 
+def calibration_png(jobs: list[Job], ps: list[float], arms: list[str], budget: int,
+                    path: Path) -> None:  # fmt: skip
+    """Per p, M's weight on each hand outcome by arm (mean over seeds, bars) against the
+    truth (black ticks), at ``budget``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    outcomes = ("kept", "moved_next", "moved_previous", "wrong")
+    figure, axes = plt.subplots(1, len(ps), figsize=(5 * len(ps), 3.5), squeeze=False)
+    for ax, p in zip(axes[0], ps, strict=True):
+        truth = (1 - p, p / 2, p / 2, 0.0)
+        shown = [a for a in arms if ARMS[a][0] == "augmented"]
+        width = 0.8 / max(len(shown), 1)
+        for n, arm in enumerate(shown):
+            runs = [j for j in jobs if dict(j.overrides)["hand_switch_prob"] == p
+                    and Path(j.folder).parent.name == arm]  # fmt: skip
+            cal = [e["hand_calibration"] for j in runs if (e := read(j, budget))]
+            if not cal:
+                continue
+            mean = [np.mean([c[k] for c in cal]) for k in outcomes]
+            ax.bar(np.arange(4) + (n - (len(shown) - 1) / 2) * width, mean, width, label=arm)
+        ax.scatter(np.arange(4), truth, marker="_", s=600, color="black", label="truth", zorder=3)
+        ax.set_xticks(np.arange(4), ["hand kept", "moved next", "moved previous", "wrong"])
+        ax.set_ylim(0, 1)
+        ax.set_title(f"p = {p}: M's mixture weight, {budget} episodes")
+        ax.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
@@ -158,6 +192,9 @@ def main() -> None:
             lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
         )  # fmt: skip
     print(tables(jobs, ps, arms, sorted({b for arm in arms for b in budgets[arm]})))
+    modelled = max(b for arm in arms if ARMS[arm][0] == "augmented" for b in budgets[arm])
+    calibration_png(jobs, ps, arms, modelled, args.out / "calibration.png")
+    print(f"figure: {args.out / 'calibration.png'}")
 
 
 if __name__ == "__main__":
