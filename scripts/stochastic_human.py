@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from imagine.config import parse_seeds
+from imagine.envs.gesture_puzzle.rules import best_success
 from imagine.study.experiments import Job, LocalRunner
 from imagine.study.report import iqm_interval
 
@@ -79,6 +80,9 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
                 n = "" if len(v) == len(mine[arm]) else f", {len(v)} seeds"
                 cells += [f"{v.mean():.1f} ({std}{n})", f"{iqm:.1f} [{low:.1f}, {high:.1f}]"]
             text.append(f"| {arm} | " + " | ".join(cells) + " |")
+        best = 100 * best_success(jobs[0].task, p)[0]
+        text.append("| best any policy can do (`rules.best_success`) | "
+                    + " | ".join([f"{best:.1f}", ""] * len(budgets)) + " |")  # fmt: skip
         modelled = [j for arm in arms if ARMS[arm][0] == "augmented" for j in mine[arm]]
         last = max((b for b in budgets for j in modelled if read(j, b)), default=budgets[-1])
         text += ["", f"M at {last} episodes, mean over seeds: its most likely next state "

@@ -197,6 +197,39 @@ def optimal_plan_length(state: Macrostate, task: str) -> int | None:
     return _optimal_lengths(check_task(task)).get(tuple(int(x) for x in state))  # type: ignore[arg-type]
 
 
+def best_success(
+    task: str, p: float = 0.0, horizon: int = MAX_EPISODE_ACTIONS
+) -> tuple[float, np.ndarray]:
+    """The most any policy can succeed with a stochastic human p: the probability of entering a
+    goal state within ``horizon`` actions, averaged over the uniformly drawn start states, by
+    backward induction over :func:`next_state_distribution`:
+    W_k(s) = max_a sum_s' P(s' | s, a) [goal(s') + live(s') W_{k-1}(s')], W_0 = 0, where live
+    means neither goal nor illegal. Returns that mean and the best action with k actions left,
+    ``actions[k - 1, macrostate_index(s)]`` (shape (horizon, 192)). 1.0 at p = 0 (every start
+    state is at most a few legal actions from a goal); below 1 for p > 0, where the hand can
+    move the goal away or an action's state illegal."""
+    check_task(task)
+    states = all_macrostates()
+    rotated = apply_actions(np.repeat(states, N_ACTIONS, axis=0),
+                            np.tile(np.arange(N_ACTIONS), len(states)))  # fmt: skip
+    outcomes, weights = [], []
+    for shift in range(N_CUBES):  # the hand kept (shift 0) or moved to another cube
+        moved = rotated.copy()
+        moved[:, 3] = (moved[:, 3] + shift) % N_CUBES
+        outcomes.append(macrostate_index(moved).reshape(len(states), N_ACTIONS))
+        weights.append(1.0 - p if shift == 0 else p / (N_CUBES - 1))
+    goal = is_goal(states, task).astype(np.float64)
+    live = 1.0 - is_terminal(states, task)
+    w = np.zeros(len(states))
+    actions = np.zeros((horizon, len(states)), dtype=np.int64)
+    for k in range(horizon):
+        q = sum(weight * (goal[n] + live[n] * w[n])
+                for weight, n in zip(weights, outcomes, strict=True))  # fmt: skip
+        actions[k] = q.argmax(1)
+        w = q.max(1) * live  # no action is taken from a terminal state
+    return float(w[macrostate_index(start_states(task))].mean()), actions
+
+
 def describe(state: Macrostate) -> str:
     """A short human-readable label, e.g. ``'↑ → ↓ | hand→1'``."""
     d0, d1, d2, h = (int(x) for x in state)
