@@ -6,8 +6,8 @@ same 1000 test episodes (with the same p) at every budget:
 - ``baseline``: C on real transitions only;
 - ``augmented``: the fast preset's augmented agent (imagination hands C M's most likely next
   state, so an imagined hand never moves);
-- ``component``: the same with ``imagination_draw=component`` (a component drawn by its
-  weight, then its mean: the hand moves as often as M's mixture says);
+- ``outcome``: the same with ``imagination_draw=outcome`` (a component drawn by its weight,
+  then its mean: the hand moves as often as M's mixture says);
 - ``one-component``: ``augmented`` with a one-component M (``n_components=1``), the control:
   a unimodal M has one next state per (state, action).
 
@@ -38,7 +38,7 @@ from imagine.study.report import iqm_interval
 ARMS: dict[str, tuple[str, tuple[tuple[str, object], ...]]] = {
     "baseline": ("baseline", ()),
     "augmented": ("augmented", ()),
-    "component": ("augmented", (("imagination_draw", "component"),)),
+    "outcome": ("augmented", (("imagination_draw", "outcome"),)),
     "one-component": ("augmented", (("n_components", 1),)),
 }
 

@@ -458,6 +458,33 @@ def test_a_component_draw_keeps_the_heaviest_component_and_its_spread():
     assert not torch.allclose(drawn[0], mode[0]) and torch.equal(drawn[1], torch.zeros(50, 3))
 
 
+def test_an_outcome_draw_takes_each_component_by_its_weight_and_its_mean():
+    """imagination_draw=outcome (a stochastic human's hand moves as often as M weighs it):
+    the components' means, each as often as its weight, no Gaussian spread; through the
+    population's predict, one row per agent as for the other draws."""
+    from imagine.models.world_model import Mixture, sample_mixture
+
+    n = 4000
+    log_pi = torch.log(torch.tensor([[0.3, 0.7]])).expand(n, 2)
+    mu = torch.tensor([[[10.0, 10.0], [0.0, 0.0]]]).expand(n, 2, 2)
+    mixture = Mixture(log_pi, mu, torch.full((n, 2, 2), 0.1))
+    outcome = sample_mixture(mixture, torch.Generator().manual_seed(0), spread=False)
+    means = {tuple(row) for row in outcome.tolist()}
+    assert means == {(10.0, 10.0), (0.0, 0.0)}
+    assert (outcome[:, 0] > 5).float().mean().item() == pytest.approx(0.3, abs=0.03)
+    torch.manual_seed(0)
+    model = WorldModel(3, dropout=0.0, n_components=2)
+    population = PopulationWorldModel([model])
+    z, a = torch.randn(1, 2000, 3), torch.randint(6, (1, 2000))
+    drawn = population.predict(z, a, [torch.Generator().manual_seed(1)], "outcome").next_z[0]
+    with torch.no_grad():
+        own = model.mdn(z[0], a[0])  # the agent's mixture, as its WorldModel computes it
+    distance = (drawn[:, None, :] - own.mu).abs().max(-1).values  # (N, 2)
+    assert (distance.min(-1).values < 1e-4).all()  # always one of the two means
+    second = (distance[:, 1] < distance[:, 0]).float().mean().item()
+    assert second == pytest.approx(own.log_pi.exp()[:, 1].mean().item(), abs=0.04)
+
+
 def test_imagined_transitions_start_from_m_r_for_a_dyna_agent():
     """An agent that imagines from M_R (imagination_from=memory) is judged on rollouts from
     the states its M_R holds, as it imagines in training; others from new episodes' starts."""

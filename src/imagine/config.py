@@ -298,9 +298,11 @@ class AgentConfig:
     free and learns only the change."""
     imagination_draw: str = "sample"
     """How an imagined next state is drawn from M's mixture: sample (a component by its weight,
-    then its Gaussian; the paper), mode (the mean of the heaviest component) or component (a
+    then its Gaussian; the paper), mode (the mean of the heaviest component), component (a
     draw from the heaviest component's Gaussian: M's most likely next macrostate with the
-    spread of its images, as a real step draws new fragments)."""
+    spread of its images, as a real step draws new fragments) or outcome (a component by its
+    weight, then its mean: each of M's outcomes as often as M weighs it, without the
+    Gaussian's spread; for a stochastic human, where the mode never moves the hand)."""
     value_expansion: int = 0
     """H: C's targets for real transitions look H steps further through M from I_start on
     (model-based value expansion, Feinberg et al. 2018; :mod:`imagine.learning.value_expansion`):
@@ -308,7 +310,7 @@ class AgentConfig:
     (the paper). Augmented only; beside imagination, which ``n_imaginary_updates: 0`` turns
     off."""
     imagination_temperature: float = 1.0
-    """tau of imagination's draws (``imagination_draw`` sample or component): weights
+    """tau of imagination's draws (``imagination_draw`` sample, component or outcome): weights
     proportional to pi^(1/tau) and scales sigma sqrt(tau), World Models' temperature. 1: M's
     own mixture (the paper); towards 0 the draws approach the mode. With this V a perfect
     diagonal M's draws are right 80.8% of the time at tau = 1 and 99.3% at half the scales
@@ -447,7 +449,7 @@ class AgentConfig:
                    "encoder": ENCODERS,
                    "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
-                   "imagination_draw": ("sample", "mode", "component"),
+                   "imagination_draw": ("sample", "mode", "component", "outcome"),
                    "imagination_from": ("current", "memory"),
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),

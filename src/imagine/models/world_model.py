@@ -73,13 +73,18 @@ def mixture_from_heads(
 
 
 def sample_mixture(
-    m: Mixture, generator: torch.Generator, component: str = "weights", temperature: float = 1.0
+    m: Mixture,
+    generator: torch.Generator,
+    component: str = "weights",
+    temperature: float = 1.0,
+    spread: bool = True,
 ) -> torch.Tensor:
     """One draw per row of mixtures (N, ...): a component from the weights (or, with
-    ``component="heaviest"``, the heaviest one), then a draw from its Gaussian. A
-    ``temperature`` tau other than 1 draws from the tempered mixture of World Models (Ha and
-    Schmidhuber 2018): weights proportional to pi_k^(1/tau), scales sigma_k sqrt(tau); tau -> 0
-    approaches the mode, tau = 1 is the mixture itself (and the same draws)."""
+    ``component="heaviest"``, the heaviest one), then a draw from its Gaussian (without
+    ``spread``: its mean). A ``temperature`` tau other than 1 draws from the tempered mixture of
+    World Models (Ha and Schmidhuber 2018): weights proportional to pi_k^(1/tau), scales
+    sigma_k sqrt(tau); tau -> 0 approaches the mode, tau = 1 is the mixture itself (and the
+    same draws)."""
     if temperature != 1.0:
         m = Mixture(
             torch.log_softmax(m.log_pi / temperature, -1), m.mu, m.sigma * math.sqrt(temperature)
@@ -90,6 +95,8 @@ def sample_mixture(
         k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
     index = k.unsqueeze(-1).expand(-1, 1, m.mu.shape[-1])
     mu, sigma = m.mu.gather(1, index).squeeze(1), m.sigma.gather(1, index).squeeze(1)
+    if not spread:
+        return mu
     eps = torch.randn(mu.shape, generator=generator, device=mu.device)
     return mu + sigma * eps
 
@@ -279,8 +286,15 @@ class StackedMDN(nn.Module):
         return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
 
 
-_COMPONENT = {"sample": "weights", "component": "heaviest"}
-"""Which component a draw of imagination (``imagination_draw``) takes its Gaussian from."""
+_COMPONENT = {"sample": ("weights", True), "component": ("heaviest", True),
+              "outcome": ("weights", False)}  # fmt: skip
+"""Which component a draw of imagination (``imagination_draw``) takes, and whether it draws
+from its Gaussian (or takes its mean)."""
+
+
+def _draw_args(draw: str, temperature: float) -> tuple[str, float, bool]:
+    component, spread = _COMPONENT[draw]
+    return component, temperature, spread
 
 
 class Prediction(NamedTuple):
@@ -387,9 +401,10 @@ class PopulationWorldModel(nn.Module):
         temperature: float = 1.0,
     ) -> Prediction:
         """The next state of rows (P, N, D) for each agent with a generator (zeros for the
-        others, with ``sample`` and ``component``), as imagination draws it: a sample of M's
-        mixture, its ``mode``, or a draw from its heaviest component's Gaussian
-        (``component``), draws at ``temperature`` (:func:`sample_mixture`); with K > 1
+        others, with the draws), as imagination draws it: a sample of M's mixture, its
+        ``mode``, a draw from its heaviest component's Gaussian (``component``) or the mean of
+        a component drawn by its weight (``outcome``), draws at ``temperature``
+        (:func:`sample_mixture`); with K > 1
         members, each row from the member drawn for it (:meth:`_draw_members`). With the
         members' disagreement about the row."""
         if self.ensemble == 1:
@@ -411,7 +426,7 @@ class PopulationWorldModel(nn.Module):
                 if generator is not None:
                     chosen = [h[i, member[i], rows] for h in per_member]
                     next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator,
-                                               _COMPONENT[draw], temperature)  # fmt: skip
+                                               *_draw_args(draw, temperature))  # fmt: skip
         return Prediction(next_z, members_spread(modes))
 
     @torch.no_grad()
@@ -451,7 +466,7 @@ class PopulationWorldModel(nn.Module):
         for i, generator in enumerate(generators):
             if generator is not None:
                 out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
-                                        _COMPONENT[draw], temperature)  # fmt: skip
+                                        *_draw_args(draw, temperature))  # fmt: skip
         return out
 
     def _mode_one(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
