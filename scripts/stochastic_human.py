@@ -179,6 +179,12 @@ def main() -> None:
         "cheap: several times faster than an augmented arm)",
     )
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--skip",
+        default="",
+        help="(p, arm) pairs not to train, e.g. "
+        "0.1/outcome,0.1/one-component (their rows stay empty)",
+    )
     parser.add_argument("--table-only", action="store_true", help="print what exists")
     args = parser.parse_args()
     ps = [float(p) for p in args.ps.split(",")]
@@ -190,9 +196,12 @@ def main() -> None:
         budgets["baseline"] = sorted(int(b) for b in args.baseline_budgets.split(","))
     jobs = human_jobs(args.out, args.vae, args.task, ps, arms, list(parse_seeds(args.seeds)),
                       budgets)  # fmt: skip
+    skipped = {f"p{float(p)}/{arm}" for p, arm in
+               (pair.split("/") for pair in args.skip.split(",") if pair)}  # fmt: skip
     if not args.table_only:
         LocalRunner(args.workers).run(
-            [j for j in jobs if not j.finished()], lambda job: None,
+            [j for j in jobs if not j.finished()
+             and str(Path(j.folder).parent.relative_to(args.out)) not in skipped], lambda job: None,
             lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
         )  # fmt: skip
     print(tables(jobs, ps, arms, sorted({b for arm in arms for b in budgets[arm]})))
