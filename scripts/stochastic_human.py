@@ -19,7 +19,7 @@ every transition from a non-terminal state, against the truth 1 - p, p/2, p/2; a
 ``OUT/calibration.png``)::
 
     .venv/bin/python scripts/stochastic_human.py runs/human --vae runs/vae-fast --ps 0.3,0.1 \\
-        --seeds 0-4 --budgets 1000,2000,4000
+        --seeds 0-4 --budgets 1000,2000 --arm-budgets baseline:1000,2000,4000
 """
 
 from __future__ import annotations
@@ -174,9 +174,11 @@ def main() -> None:
     parser.add_argument("--seeds", default="0-4")
     parser.add_argument("--budgets", default="1000,2000,4000")
     parser.add_argument(
-        "--baseline-budgets",
-        help="the baseline's, if not --budgets (it is "
-        "cheap: several times faster than an augmented arm)",
+        "--arm-budgets",
+        action="append",
+        default=[],
+        metavar="ARM:BUDGETS",
+        help="an arm's own budgets, e.g. baseline:1000,2000,4000 (repeatable)",
     )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument(
@@ -192,8 +194,11 @@ def main() -> None:
     if unknown := set(arms) - set(ARMS):
         parser.error(f"unknown arms {sorted(unknown)}; choose from {', '.join(ARMS)}")
     budgets = {arm: sorted(int(b) for b in args.budgets.split(",")) for arm in arms}
-    if args.baseline_budgets and "baseline" in budgets:
-        budgets["baseline"] = sorted(int(b) for b in args.baseline_budgets.split(","))
+    for given in args.arm_budgets:
+        arm, _, values = given.partition(":")
+        if arm not in budgets:
+            parser.error(f"--arm-budgets {given}: {arm!r} is not one of --arms")
+        budgets[arm] = sorted(int(b) for b in values.split(","))
     jobs = human_jobs(args.out, args.vae, args.task, ps, arms, list(parse_seeds(args.seeds)),
                       budgets)  # fmt: skip
     skipped = {f"p{float(p)}/{arm}" for p, arm in
