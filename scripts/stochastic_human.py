@@ -90,9 +90,11 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
                  f"(truth {1 - p:.2f}); the mixture's weight on each hand outcome (truth "
                  f"{1 - p:.2f} / {p / 2:.2f} / {p / 2:.2f} / 0) and its total variation from "
                  "the truth, from non-terminal states (what M learns from) and over all "
-                 "192 x 6 transitions.", "",
+                 "192 x 6 transitions; on the (state, action) pairs of the agent's real "
+                 "memory, M's TV and that of the frequencies counted there.", "",
                  "| arm | most likely | sample | sample keeps hand | kept | moved next | "
-                 "moved previous | wrong | TV | TV, all |", "| --- " * 10 + "|"]  # fmt: skip
+                 "moved previous | wrong | TV | TV, all | pairs in M_R (median visits) | "
+                 "M's TV there | counts' TV there |", "| --- " * 13 + "|"]  # fmt: skip
         text += [row for arm in arms if (row := model_row(arm, mine[arm], last))]
         text.append("")
     return "\n".join(text)
@@ -100,8 +102,10 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
 
 def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
     """M's accuracy and calibration over the seeds of ``arm`` at ``budget`` (None without M);
-    the all-transitions calibration from each run's checkpoint, where it is still at
-    ``budget``."""
+    from each run's checkpoint, where it is still at ``budget``: the calibration over all
+    192 x 6 transitions, and on the (state, action) pairs of the agent's own real memory, M's
+    total variation beside that of the counts of what followed them there (the tabular
+    estimate from the same data)."""
     from imagine.envs.gesture_puzzle.evaluation import hand_calibration
     from imagine.learning.agent import load_agent
 
@@ -116,7 +120,7 @@ def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
         np.mean([e["hand_calibration"][k] for e in evaluations])
         for k in ("kept", "moved_next", "moved_previous", "wrong", "total_variation")
     ]
-    everywhere = []
+    everywhere, memory = [], []
     for job in jobs:
         agent = load_agent(job.folder)
         if agent.episode == budget:
@@ -126,9 +130,50 @@ def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
                     "total_variation"
                 ]
             )
+            memory.append(memory_calibration(job, agent, p))
     tv_all = f"{np.mean(everywhere):.3f}" if everywhere else "-"
+    seen = (
+        ("-",) * 3
+        if not memory
+        else (
+            f"{np.mean([m[0] for m in memory]):.0f} ({np.mean([m[1] for m in memory]):.0f})",
+            f"{np.mean([m[2] for m in memory]):.3f}",
+            f"{np.mean([m[3] for m in memory]):.3f}",
+        )
+    )
     return (f"| {arm} | " + " | ".join(f"{v:.1f}" for v in accuracy) + " | "
-            + " | ".join(f"{v:.3f}" for v in calibration) + f" | {tv_all} |")  # fmt: skip
+            + " | ".join(f"{v:.3f}" for v in calibration) + f" | {tv_all} | "
+            + " | ".join(seen) + " |")  # fmt: skip
+
+
+def memory_calibration(job: Job, agent, p: float) -> tuple[int, float, float, float]:
+    """On the (state, action) pairs of the agent's real memory M_R (macrostates read by V's
+    classifier): how many pairs, their median count, M's mean total variation from the truth
+    there, and that of the pairs' empirical next-state frequencies."""
+    from imagine.envs.gesture_puzzle.evaluation import (
+        hand_outcome_weights,
+        hand_total_variation,
+        outcome_mass,
+    )
+    from imagine.envs.gesture_puzzle.rules import N_ACTIONS, apply_actions, macrostate_index
+    from imagine.learning.agent_checkpoint import READABLE_FORMATS, read_checkpoint
+
+    tensors, _ = read_checkpoint(Path(job.folder), READABLE_FORMATS)
+    states = agent.encoder.classify(tensors["real.mu"]).numpy()
+    following = agent.encoder.classify(tensors["real.next_mu"]).numpy()
+    actions = tensors["real.action"].numpy()
+    pair = macrostate_index(states) * N_ACTIONS + actions
+    pairs, first, counts = np.unique(pair, return_index=True, return_counts=True)
+    each = outcome_mass(
+        apply_actions(states, actions), following[:, None, :], np.ones((len(states), 1))
+    )  # one-hot outcome per transition
+    sums = np.zeros((len(pairs), 4))
+    np.add.at(sums, np.searchsorted(pairs, pair), each)
+    counted = hand_total_variation(sums / counts[:, None], p).mean()
+    modelled = hand_total_variation(
+        hand_outcome_weights(agent.model, agent.encoder, states[first], actions[first]), p
+    ).mean()
+    return len(pairs), float(np.median(counts)), float(modelled), float(counted)
 
 
 def calibration_png(jobs: list[Job], ps: list[float], arms: list[str], budget: int,

@@ -178,6 +178,25 @@ def hand_calibration(
     if not include_terminal:
         seen = ~is_terminal(states, task)
         states, actions = states[seen], actions[seen]
+    mass = hand_outcome_weights(model, encoder, states, actions)
+    return {
+        "p": p,
+        "kept": float(mass[:, 0].mean()),
+        "moved_next": float(mass[:, 1].mean()),
+        "moved_previous": float(mass[:, 2].mean()),
+        "wrong": float(mass[:, 3].mean()),
+        "total_variation": float(hand_total_variation(mass, p).mean()),
+        "transitions": len(states),
+    }
+
+
+@torch.no_grad()
+def hand_outcome_weights(
+    model: WorldModel, encoder, states: np.ndarray, actions: np.ndarray
+) -> np.ndarray:
+    """M's mixture weight on each outcome of each (state, action) (n, 4): the hand kept, moved
+    to the cube after the pointed one, to the one before, or a wrong state (arrows wrong), each
+    component's weight going to what its mean shows (read back by the encoder's classifier)."""
     truth = apply_actions(states, actions)
     z = encoder.state_latents()[torch.as_tensor(macrostate_index(states))]
     was_training = model.training
@@ -186,22 +205,24 @@ def hand_calibration(
     model.train(was_training)
     n, k, d = mixture.mu.shape
     shown = encoder.classify(mixture.mu.reshape(n * k, d)).numpy().reshape(n, k, 4)
-    weight = mixture.log_pi.exp().numpy()
+    return outcome_mass(truth, shown, mixture.log_pi.exp().numpy())
+
+
+def outcome_mass(truth: np.ndarray, shown: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The weight (n, 4) on the hand kept, moved +1, moved +2 and a wrong state of ``weight``
+    (n, k) spread over next macrostates ``shown`` (n, k, 4), against the true rotated states
+    ``truth`` (n, 4) (hand kept)."""
     arrows = (shown[..., :3] == truth[:, None, :3]).all(-1)
     hand = truth[:, None, 3]
     outcomes = [arrows & (shown[..., 3] == (hand + shift) % 3) for shift in (0, 1, 2)]
     mass = np.stack([(weight * o).sum(-1) for o in outcomes], -1)  # (n, 3): kept, +1, +2
-    wrong = 1.0 - mass.sum(-1)
-    target = np.array([1.0 - p, p / 2, p / 2])
-    return {
-        "p": p,
-        "kept": float(mass[:, 0].mean()),
-        "moved_next": float(mass[:, 1].mean()),
-        "moved_previous": float(mass[:, 2].mean()),
-        "wrong": float(wrong.mean()),
-        "total_variation": float(0.5 * (np.abs(mass - target).sum(-1) + wrong).mean()),
-        "transitions": len(states),
-    }
+    return np.concatenate([mass, 1.0 - mass.sum(-1, keepdims=True)], -1)
+
+
+def hand_total_variation(mass: np.ndarray, p: float) -> np.ndarray:
+    """Each row's total variation (n,) from the stochastic human's truth (1 - p, p / 2, p / 2,
+    0): half the summed absolute differences."""
+    return 0.5 * np.abs(mass - np.array([1.0 - p, p / 2, p / 2, 0.0])).sum(-1)
 
 
 def random_success(
