@@ -84,18 +84,20 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
         text.append("| best any policy can do (`rules.best_success`) | "
                     + " | ".join([f"{best:.1f}", ""] * len(budgets)) + " |")  # fmt: skip
         modelled = [j for arm in arms if ARMS[arm][0] == "augmented" for j in mine[arm]]
-        last = max((b for b in budgets for j in modelled if read(j, b)), default=budgets[-1])
-        text += ["", f"M at {last} episodes, mean over seeds: its most likely next state "
-                 "right (hand kept), a sample right (arrows), samples that keep the hand "
+        shown = [b for b in budgets if any(read(j, b) for j in modelled)]
+        text += ["", "M, mean over seeds: its most likely next state right (hand kept), a "
+                 "sample right (arrows), samples that keep the hand "
                  f"(truth {1 - p:.2f}); the mixture's weight on each hand outcome (truth "
                  f"{1 - p:.2f} / {p / 2:.2f} / {p / 2:.2f} / 0) and its total variation from "
-                 "the truth, from non-terminal states (what M learns from) and over all "
-                 "192 x 6 transitions; on the (state, action) pairs of the agent's real "
-                 "memory, M's TV and that of the frequencies counted there.", "",
-                 "| arm | most likely | sample | sample keeps hand | kept | moved next | "
-                 "moved previous | wrong | TV | TV, all | pairs in M_R (median visits) | "
-                 "M's TV there | counts' TV there |", "| --- " * 13 + "|"]  # fmt: skip
-        text += [row for arm in arms if (row := model_row(arm, mine[arm], last))]
+                 "the truth, from non-terminal states (what M learns from) and, from the "
+                 "run's checkpoint where it is still at that budget, over all "
+                 "192 x 6 transitions and on the (state, action) pairs of the agent's real "
+                 "memory: M's TV and that of the frequencies counted there.", "",
+                 "| arm, episodes | most likely | sample | sample keeps hand | kept | "
+                 "moved next | moved previous | wrong | TV | TV, all | pairs in M_R (median "
+                 "visits) | M's TV there | counts' TV there |", "| --- " * 13 + "|"]  # fmt: skip
+        text += [row for b in shown for arm in arms
+                 if (row := model_row(f"{arm}, {b}", mine[arm], b))]  # fmt: skip
         text.append("")
     return "\n".join(text)
 
