@@ -13,7 +13,7 @@ same 1000 test episodes (with the same p) at every budget:
 
 Trains ``OUT/p<p>/<arm>/seed-N`` through the budgets (two populations at a time, resumable;
 what exists is skipped), then prints per p the success table (mean (std) and IQM [95%
-bootstrap CI]) and, at the last budget, M's accuracy and its calibration (``hand_calibration``:
+bootstrap CI]) and, at each budget, M's accuracy and its calibration (``hand_calibration``:
 the weight M's mixture puts on the hand kept, moved to either other cube or a wrong state, over
 every transition from a non-terminal state, against the truth 1 - p, p/2, p/2; also drawn in
 ``OUT/calibration.png``)::
@@ -60,7 +60,7 @@ def read(job: Job, budget: int) -> dict | None:
 
 
 def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]) -> str:
-    """Per p: success by budget and arm; M's accuracy and calibration at the last budget."""
+    """Per p: success by budget and arm; M's accuracy and calibration at each budget."""
     text = []
     for p in ps:
         mine = {arm: [j for j in jobs if dict(j.overrides)["hand_switch_prob"] == p
@@ -92,7 +92,9 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
                  "the truth, from non-terminal states (what M learns from) and, from the "
                  "run's checkpoint where it is still at that budget, over all "
                  "192 x 6 transitions and on the (state, action) pairs of the agent's real "
-                 "memory: M's TV and that of the frequencies counted there.", "",
+                 "memory: M's TV and that of the frequencies counted there (these three over "
+                 "the seeds whose checkpoint is at that budget; the counts read real images "
+                 "through V's classifier, and few visits bias their TV upward).", "",
                  "| arm, episodes | most likely | sample | sample keeps hand | kept | "
                  "moved next | moved previous | wrong | TV | TV, all | pairs in M_R (median "
                  "visits) | M's TV there | counts' TV there |", "| --- " * 13 + "|"]  # fmt: skip
@@ -102,8 +104,8 @@ def tables(jobs: list[Job], ps: list[float], arms: list[str], budgets: list[int]
     return "\n".join(text)
 
 
-def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
-    """M's accuracy and calibration over the seeds of ``arm`` at ``budget`` (None without M);
+def model_row(label: str, jobs: list[Job], budget: int) -> str | None:
+    """M's accuracy and calibration over the seeds of ``jobs`` at ``budget`` (None without M);
     from each run's checkpoint, where it is still at ``budget``: the calibration over all
     192 x 6 transitions, and on the (state, action) pairs of the agent's own real memory, M's
     total variation beside that of the counts of what followed them there (the tabular
@@ -124,6 +126,9 @@ def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
     ]
     everywhere, memory = [], []
     for job in jobs:
+        saved = Path(job.folder) / "agent.json"
+        if not read(job, budget) or json.loads(saved.read_text())["episode"] != budget:
+            continue  # no checkpoint at this budget: trained on, or not yet there
         agent = load_agent(job.folder)
         if agent.episode == budget:
             p = agent.config.hand_switch_prob
@@ -143,7 +148,7 @@ def model_row(arm: str, jobs: list[Job], budget: int) -> str | None:
             f"{np.mean([m[3] for m in memory]):.3f}",
         )
     )
-    return (f"| {arm} | " + " | ".join(f"{v:.1f}" for v in accuracy) + " | "
+    return (f"| {label} | " + " | ".join(f"{v:.1f}" for v in accuracy) + " | "
             + " | ".join(f"{v:.3f}" for v in calibration) + f" | {tv_all} | "
             + " | ".join(seen) + " |")  # fmt: skip
 
@@ -237,6 +242,8 @@ def main() -> None:
     parser.add_argument("--table-only", action="store_true", help="print what exists")
     args = parser.parse_args()
     ps = [float(p) for p in args.ps.split(",")]
+    if not all(0.0 < p < 1.0 for p in ps):
+        parser.error(f"--ps {args.ps}: each p must be in (0, 1): a stochastic human")
     arms = args.arms.split(",")
     if unknown := set(arms) - set(ARMS):
         parser.error(f"unknown arms {sorted(unknown)}; choose from {', '.join(ARMS)}")
@@ -245,11 +252,17 @@ def main() -> None:
         arm, _, values = given.partition(":")
         if arm not in budgets:
             parser.error(f"--arm-budgets {given}: {arm!r} is not one of --arms")
+        if not all(b.strip().isdigit() for b in values.split(",")):
+            parser.error(f"--arm-budgets {given}: expected ARM:B1,B2,... (episode counts)")
         budgets[arm] = sorted(int(b) for b in values.split(","))
     jobs = human_jobs(args.out, args.vae, args.task, ps, arms, list(parse_seeds(args.seeds)),
                       budgets)  # fmt: skip
-    skipped = {f"p{float(p)}/{arm}" for p, arm in
-               (pair.split("/") for pair in args.skip.split(",") if pair)}  # fmt: skip
+    skipped = set()
+    for pair in filter(None, args.skip.split(",")):
+        p, _, arm = pair.partition("/")
+        if arm not in arms or float(p) not in ps:
+            parser.error(f"--skip {pair}: expected P/ARM with P in --ps and ARM in --arms")
+        skipped.add(f"p{float(p)}/{arm}")
     if not args.table_only:
         LocalRunner(args.workers).run(
             [j for j in jobs if not j.finished()
@@ -257,9 +270,11 @@ def main() -> None:
             lambda job, error: print(f"{job.folder}: {error or 'done'}", flush=True),
         )  # fmt: skip
     print(tables(jobs, ps, arms, sorted({b for arm in arms for b in budgets[arm]})))
-    modelled = max(b for arm in arms if ARMS[arm][0] == "augmented" for b in budgets[arm])
-    calibration_png(jobs, ps, arms, modelled, args.out / "calibration.png")
-    print(f"figure: {args.out / 'calibration.png'}")
+    last = max((b for arm in arms if ARMS[arm][0] == "augmented" for b in budgets[arm]),
+               default=None)  # fmt: skip
+    if last is not None:
+        calibration_png(jobs, ps, arms, last, args.out / "calibration.png")
+        print(f"figure: {args.out / 'calibration.png'}")
 
 
 if __name__ == "__main__":

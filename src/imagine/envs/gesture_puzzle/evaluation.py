@@ -164,7 +164,7 @@ def model_accuracy(
 @torch.no_grad()
 def hand_calibration(
     model: WorldModel, encoder, task: str, p: float, include_terminal: bool = False
-) -> dict[str, float]:
+) -> dict[str, float | int]:
     """How M's mixture divides its probability among the hand's outcomes (issue 16), over
     every transition from a non-terminal state (the ones M learns from; ``include_terminal``:
     all 192 x 6, those from terminal states being generalization): each component's weight

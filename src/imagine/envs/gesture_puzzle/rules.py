@@ -206,8 +206,8 @@ def best_success(
     W_k(s) = max_a sum_s' P(s' | s, a) [goal(s') + live(s') W_{k-1}(s')], W_0 = 0, where live
     means neither goal nor illegal. Returns that mean and the best action with k actions left,
     ``actions[k - 1, macrostate_index(s)]`` (shape (horizon, 192)). 1.0 at p = 0 (every start
-    state is at most a few legal actions from a goal); below 1 for p > 0, where the hand can
-    move the goal away or an action's state illegal."""
+    state is at most a few legal actions from a goal); below 1 for p > 0, where the hand's
+    moves can keep an agent from reaching a goal within the 10 actions."""
     check_task(task)
     states = all_macrostates()
     rotated = apply_actions(np.repeat(states, N_ACTIONS, axis=0),
