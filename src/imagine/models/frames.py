@@ -50,9 +50,8 @@ def random_frames(spec: EnvSpec, n: int, seed: int, copies: int = 16) -> np.ndar
         obs, _, terminated, truncated, info = envs.step(rng.integers(spec.n_actions, size=copies))
         ended = terminated | truncated
         if ended.any():
-            episode_of = np.zeros(copies, dtype=np.int64)
-            episode_of[ended] = started + np.arange(ended.sum())
+            # the ended copies start episodes started, started + 1, ... in copy order
+            obs, info = reset_ended(envs, ended, started + np.cumsum(ended) - 1, seed)
             started += int(ended.sum())
-            obs, info = reset_ended(envs, ended, episode_of, seed)
     envs.close()
     return np.concatenate(frames)[:n]

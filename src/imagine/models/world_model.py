@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 from torch import nn
@@ -286,15 +286,13 @@ class StackedMDN(nn.Module):
         return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
 
 
-_COMPONENT = {"sample": ("weights", True), "component": ("heaviest", True),
-              "outcome": ("weights", False)}  # fmt: skip
-"""Which component a draw of imagination (``imagination_draw``) takes, and whether it draws
-from its Gaussian (or takes its mean)."""
-
-
-def _draw_args(draw: str, temperature: float) -> tuple[str, float, bool]:
-    component, spread = _COMPONENT[draw]
-    return component, temperature, spread
+_DRAWS: dict[str, dict[str, Any]] = {
+    "sample": {"component": "weights"},
+    "component": {"component": "heaviest"},
+    "outcome": {"component": "weights", "spread": False},
+}
+""":func:`sample_mixture`'s arguments for each draw of imagination (``imagination_draw``): which
+component it takes, and whether it draws from its Gaussian or takes its mean."""
 
 
 class Prediction(NamedTuple):
@@ -426,7 +424,7 @@ class PopulationWorldModel(nn.Module):
                 if generator is not None:
                     chosen = [h[i, member[i], rows] for h in per_member]
                     next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator,
-                                               *_draw_args(draw, temperature))  # fmt: skip
+                                               temperature=temperature, **_DRAWS[draw])  # fmt: skip
         return Prediction(next_z, members_spread(modes))
 
     @torch.no_grad()
@@ -466,7 +464,7 @@ class PopulationWorldModel(nn.Module):
         for i, generator in enumerate(generators):
             if generator is not None:
                 out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
-                                        *_draw_args(draw, temperature))  # fmt: skip
+                                        temperature=temperature, **_DRAWS[draw])  # fmt: skip
         return out
 
     def _mode_one(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
