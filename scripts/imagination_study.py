@@ -270,6 +270,17 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "hand_switch_prob": 0.3, "n_components": 1},
     ),
+    # value expansion weighted in the style of STEVE (issue 16): an ensemble of 5 M
+    "augmented, as s50, 5 members of M, the horizons weighted as STEVE does": (
+        "augmented",
+        {
+            **ROUND_6,
+            **RESIDUAL_20,
+            "value_expansion": 2,
+            "model_ensemble": 5,
+            "value_expansion_weighting": "steve",
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -6,9 +6,10 @@ import torch
 from imagine.config import agent_preset
 from imagine.errors import ConfigError
 from imagine.learning.training import train
-from imagine.learning.value_expansion import expanded_target
+from imagine.learning.value_expansion import expanded_target, steve_target
 from imagine.metrics import read_metrics
 from imagine.models.controller import Controller, PopulationController
+from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 
 class ShiftModel:
@@ -58,3 +59,105 @@ def test_value_expansion_needs_m_and_a_short_horizon():
         agent_preset("fast", method="baseline", value_expansion=1)
     with pytest.raises(ConfigError, match="value_expansion must be 0 to 3"):
         agent_preset("fast", value_expansion=5)
+
+
+class ShiftEnsemble(ShiftModel):
+    """An ensemble of K ShiftModels: member k moves z by 1 + k * ``part`` (all agree at 0);
+    ``endless``: no state ends an episode."""
+
+    def __init__(self, members: int, part: float, endless: bool = False) -> None:
+        self.ensemble, self.part, self.endless = members, part, endless
+
+    def is_terminal(self, z):
+        if self.endless:
+            return torch.zeros(z.shape[:-1], dtype=torch.bool)
+        return super().is_terminal(z)
+
+    def member_paths(self, z, action):
+        k = torch.arange(self.ensemble, dtype=z.dtype).view(1, -1, 1, 1)
+        return z + 1.0 + k * self.part
+
+
+def steve_setting():
+    torch.manual_seed(0)
+    controller = PopulationController([Controller(2), Controller(2)], gamma=0.9)
+    z = torch.tensor([[[0.5, 0.0], [1.0, 2.0]], [[-3.0, 1.0], [0.2, 0.1]]])  # (P=2, B=2, D)
+    next_z = z + 1.0
+    action = torch.tensor([[0, 3], [5, 1]])
+    reward, done = torch.tensor([[-1.0, 50.0], [-5.0, -1.0]]), torch.tensor([[0.0, 1.0], [0, 0]])
+    return controller, z, action, reward, next_z, done
+
+
+def test_steve_with_agreeing_members_weighs_each_horizon_by_its_bootstrap_share():
+    """Members that agree leave only the bootstrap's variance, (c_j)^2 sigma_Q^2: horizon j's
+    weight is proportional to 1 / c_j^2 (a horizon past M's end, c_j = 0, takes it all)."""
+    controller, z, action, reward, next_z, done = steve_setting()
+    horizon = 2
+    y, mean_horizon = steve_target(controller, ShiftEnsemble(3, 0.0), z, action, reward,
+                                   next_z, done, horizon)  # fmt: skip
+    q = controller.q(z).gather(-1, action.unsqueeze(-1)).squeeze(-1)
+    q_variance = (controller.td_target(reward, next_z, done) - q).square().mean(-1, keepdim=True)
+    candidates, weights = [], []
+    for j in range(horizon + 1):  # W_j from expanded_target's j-step return, c_j by hand
+        inner_j = expanded_target(controller, ShiftModel(), torch.zeros_like(reward), next_z,
+                                  torch.zeros_like(done), j) / 0.9  # fmt: skip
+        c_j = torch.ones_like(reward)
+        for i in range(1, j + 1):
+            c_j = c_j * 0.9 * (1 - ((next_z + i)[..., 0] > 2.5).float())
+        candidates.append(inner_j)
+        weights.append(1 / (c_j.square() * q_variance + 1e-8))
+    w = torch.stack(weights) / torch.stack(weights).sum(0)
+    expected = reward + 0.9 * (1 - done) * (w * torch.stack(candidates)).sum(0)
+    assert torch.allclose(y, expected, atol=1e-4)
+    assert torch.allclose(mean_horizon, (w * torch.tensor([0.0, 1, 2]).view(-1, 1, 1)).sum(0)
+                          .mean(-1))  # fmt: skip
+    assert (mean_horizon > 1.0).all()  # agreeing members: the longer horizons weigh more
+
+
+def test_steve_returns_to_equation_1_where_the_members_part():
+    """The further apart the members' states (and so their Q'), the less the expanded
+    horizons weigh: at the limit, y is equation 1's."""
+    controller, z, action, reward, next_z, done = steve_setting()
+    plain = controller.td_target(reward, next_z, done)
+    gaps, horizons = [], []
+    for part in (1e2, 1e4, 1e6):
+        parting = ShiftEnsemble(3, part, endless=True)
+        y, mean_horizon = steve_target(controller, parting, z, action, reward, next_z, done, 3)
+        gaps.append((y - plain).abs().max())
+        horizons.append(mean_horizon.max())
+    assert gaps[2] < min(0.2, gaps[0])
+    assert horizons[0] > horizons[1] > horizons[2] and horizons[2] < 1e-3
+
+
+def test_each_member_rolls_out_on_its_own_rows():
+    torch.manual_seed(1)
+    models = [WorldModel(3, dropout=0.0, ensemble=3) for _ in range(2)]
+    population = PopulationWorldModel(models)
+    z, action = torch.randn(2, 3, 4, 3), torch.randint(0, 6, (2, 3, 4))
+    paths = population.member_paths(z, action)
+    for i, model in enumerate(models):
+        for k, member in enumerate(model.members):
+            assert torch.allclose(paths[i, k], member.most_likely(z[i, k], action[i, k]),
+                                  atol=1e-5)  # fmt: skip
+
+
+def test_an_agent_learns_with_steve_targets(tmp_path):
+    config = agent_preset("smoke", encoder="oracle", episodes=40, imagination_start=10,
+                          value_expansion=2, value_expansion_weighting="steve",
+                          model_ensemble=2)  # fmt: skip
+    agent = train(config, tmp_path, threads=1)
+    assert agent.episode == 40
+    rows = read_metrics(tmp_path / "metrics.csv")
+    horizons = [r["charts/expansion_horizon"] for r in rows if "charts/expansion_horizon" in r]
+    assert horizons and all(0.0 <= h <= 2.0 for h in horizons)
+    assert all(torch.isfinite(torch.tensor(r["losses/controller_real"])) for r in rows
+               if "losses/controller_real" in r)  # fmt: skip
+
+
+def test_steve_needs_an_ensemble_and_a_horizon():
+    with pytest.raises(ConfigError, match="must be one of"):
+        agent_preset("fast", value_expansion_weighting="stevee")
+    with pytest.raises(ConfigError, match="model_ensemble >= 2"):
+        agent_preset("fast", value_expansion=2, value_expansion_weighting="steve")
+    with pytest.raises(ConfigError, match="value_expansion >= 1"):
+        agent_preset("fast", model_ensemble=3, value_expansion_weighting="steve")

@@ -309,6 +309,11 @@ class AgentConfig:
     C's greedy actions, M's most likely next states, r and d, then Q' bootstraps. 0: equation 1
     (the paper). Augmented only; beside imagination, which ``n_imaginary_updates: 0`` turns
     off."""
+    value_expansion_weighting: str = "mve"
+    """How the H-step target uses the horizons: mve (the H-step return alone, MVE) or steve
+    (every horizon 0..H, each member of an ensemble M rolling out alone, weighted by the
+    inverse of its variance over the members and the bootstrap's: STEVE, Buckman et al.
+    2018; needs ``model_ensemble`` >= 2)."""
     imagination_temperature: float = 1.0
     """tau of imagination's draws (``imagination_draw`` sample, component or outcome): weights
     proportional to pi^(1/tau) and scales sigma sqrt(tau), World Models' temperature. 1: M's
@@ -453,7 +458,8 @@ class AgentConfig:
                    "imagination_from": ("current", "memory"),
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
-                   "imagination_uncertainty": UNCERTAINTIES}  # fmt: skip
+                   "imagination_uncertainty": UNCERTAINTIES,
+                   "value_expansion_weighting": ("mve", "steve")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(
@@ -473,6 +479,14 @@ class AgentConfig:
             raise ConfigError("agent.value_expansion needs M: it is for method augmented")
         if not 0 <= self.value_expansion <= 3:
             raise ConfigError(f"agent.value_expansion must be 0 to 3, got {self.value_expansion}")
+        if self.value_expansion_weighting == "steve" and (
+            self.value_expansion < 1 or self.model_ensemble < 2
+        ):
+            raise ConfigError(
+                "agent.value_expansion_weighting steve weighs horizons by an ensemble M's "
+                f"disagreement: set agent.value_expansion >= 1 (got {self.value_expansion}) and "
+                f"agent.model_ensemble >= 2 (got {self.model_ensemble})"
+            )
         if not (isinstance(self.wrappers, list) and all(isinstance(w, str) for w in self.wrappers)):
             raise ConfigError(
                 f"agent.wrappers must be a list of module:Class names, got {self.wrappers!r}"

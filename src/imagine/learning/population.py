@@ -48,7 +48,7 @@ from imagine.learning.gate import (
 )
 from imagine.learning.imagination import SplitModel, imagine_rollouts, posterior_scale
 from imagine.learning.memory import ReplayMemory, imaginary_fields, real_fields
-from imagine.learning.value_expansion import expanded_target
+from imagine.learning.value_expansion import expanded_target, steve_target
 from imagine.models.controller import Controller, PopulationController, epsilon
 from imagine.models.stacked import agent_normal, export_agent, import_agent, set_matmul_dtype
 from imagine.models.world_model import PopulationWorldModel, WorldModel
@@ -264,14 +264,21 @@ class Population:
         expanding = [
             i for i in agents if c.value_expansion and self.episode[i] >= c.imagination_start
         ]
+        expanding_rows = torch.as_tensor(expanding, dtype=torch.int64, device=self.device)
         for _ in range(updates):
             b = self.real.sample(c.real_batch, gens)
             z, next_z = self._controller_states(b, gens)
             target = None
             if expanding:  # value expansion through M from I_start on, equation 1 before
                 target = self.controller.td_target(b["reward"], next_z, b["done"])
-                expanded = expanded_target(self.controller, self.model, b["reward"], next_z,
-                                           b["done"], c.value_expansion)  # fmt: skip
+                if c.value_expansion_weighting == "steve":
+                    expanded, horizon = steve_target(self.controller, self.model, z,
+                                                     b["action"], b["reward"], next_z,
+                                                     b["done"], c.value_expansion)  # fmt: skip
+                    self._record("charts/expansion_horizon", horizon, expanding_rows)
+                else:
+                    expanded = expanded_target(self.controller, self.model, b["reward"],
+                                               next_z, b["done"], c.value_expansion)  # fmt: skip
                 target[expanding] = expanded[expanding]
             loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], agents,
                                           target)  # fmt: skip

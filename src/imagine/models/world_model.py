@@ -375,6 +375,16 @@ class PopulationWorldModel(nn.Module):
         modes = mixture_mode(self._mixture(self._heads(zs, self._each_member(action)), zs))
         return modes.view(z.shape[0], self.ensemble, *z.shape[1:])
 
+    @torch.no_grad()
+    def member_paths(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Each member's most likely next state on its own rows: latents (P, K, N, D) and
+        actions (P, K, N), row [i, k] for member k of agent i; (P, K, N, D). K rollouts, one
+        per member (STEVE's; :mod:`imagine.learning.value_expansion`)."""
+        P, K, N, D = z.shape
+        zs = z.reshape(P * K, N, D)
+        heads = self._heads(zs, action.reshape(P * K, N))
+        return mixture_mode(self._mixture(heads, zs)).view(P, K, N, D)
+
     def _draw_members(
         self, rows: int, generators: Sequence[torch.Generator | None], device: torch.device
     ) -> torch.Tensor:
