@@ -408,9 +408,52 @@ def test_render_returns_the_full_scenes() -> None:
 def test_disabled_autoreset_resets_only_what_is_asked() -> None:
     envs = GesturePuzzleVectorEnv(3, autoreset_mode=AutoresetMode.DISABLED)
     _, info = envs.reset(seed=[5, 6, 7])
-    for _ in range(rules.MAX_EPISODE_ACTIONS):
-        *_, info = envs.step(np.zeros(3, dtype=np.int64))
-    assert (info["actions"] == rules.MAX_EPISODE_ACTIONS).all()  # no reset happened
+    ended = np.zeros(3, dtype=bool)
+    for _ in range(rules.MAX_EPISODE_ACTIONS + 3):  # past every episode's end
+        _, _, terminated, truncated, info = envs.step(np.zeros(3, dtype=np.int64))
+        assert not (ended & (terminated | truncated)).any()  # an ended episode ends once
+        ended |= terminated | truncated
+    assert ended.all()
+    lengths = info["actions"].copy()
+    assert (lengths >= 1).all() and (lengths <= rules.MAX_EPISODE_ACTIONS).all()
     mask = np.array([True, False, False])
     _, info = envs.reset(options={"reset_mask": mask})
-    assert info["actions"].tolist() == [0, rules.MAX_EPISODE_ACTIONS, rules.MAX_EPISODE_ACTIONS]
+    assert info["actions"].tolist() == [0, *lengths[1:]]
+
+
+@pytest.mark.parametrize("p", [0.0, 0.3], ids=["paper", "stochastic-human"])
+def test_disabled_autoreset_runs_each_episode_as_a_single_env_then_holds_it(p: float) -> None:
+    """Until its episode ends a sub-environment is its single environment step for step; after
+    that it is not stepped: observation and macrostate held, reward 0, no second end, no draw
+    from its generator."""
+    n = 6
+    vec = GesturePuzzleVectorEnv(n, task="hard", autoreset_mode=AutoresetMode.DISABLED,
+                                 hand_switch_prob=p)  # fmt: skip
+    singles = [gym.make(ENV_ID, task="hard", hand_switch_prob=p) for _ in range(n)]
+    obs_v, _ = vec.reset(seed=123)
+    for i, env in enumerate(singles):
+        obs_i, _ = env.reset(seed=123 + i)
+        np.testing.assert_array_equal(obs_v[i], obs_i)
+    rng = np.random.default_rng(7)
+    running = np.ones(n, dtype=bool)
+    held: dict[int, tuple] = {}
+    for t in range(rules.MAX_EPISODE_ACTIONS + 2):
+        actions = rng.integers(0, 6, size=n)
+        obs_v, rew_v, term_v, trunc_v, info_v = vec.step(actions)
+        for i in range(n):
+            if running[i]:
+                obs_i, rew_i, term_i, trunc_i, info_i = singles[i].step(int(actions[i]))
+                np.testing.assert_array_equal(obs_v[i], obs_i, err_msg=f"env {i}, step {t}")
+                assert (rew_v[i], term_v[i], trunc_v[i]) == (rew_i, term_i, trunc_i)
+                assert tuple(info_v["macrostate"][i]) == tuple(info_i["macrostate"])
+                if term_i or trunc_i:
+                    running[i] = False
+                    held[i] = (obs_v[i].copy(), info_v["macrostate"][i].copy(),
+                               vec._rng(i).bit_generator.state)  # fmt: skip
+            else:
+                obs, state, generator = held[i]
+                np.testing.assert_array_equal(obs_v[i], obs)
+                np.testing.assert_array_equal(info_v["macrostate"][i], state)
+                assert (rew_v[i], term_v[i], trunc_v[i]) == (0.0, False, False)
+                assert vec._rng(i).bit_generator.state == generator
+    assert not running.any()

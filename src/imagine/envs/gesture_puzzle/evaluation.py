@@ -60,9 +60,9 @@ def policy_success(
     macrostates (N, 4) -> actions (N,)): success rate with its 95% Wilson interval, mean
     return with its 95% interval. Episode k starts from ``seed + k`` as in :func:`greedy_success`,
     so every agent (ours or a peer's) meets the same test episodes."""
-    envs = GesturePuzzleVectorEnv(
+    envs = GesturePuzzleVectorEnv(  # DISABLED: an ended episode costs nothing more
         episodes, task=task, fragments=None if composer is None else composer.pool,
-        autoreset_mode=AutoresetMode.SAME_STEP, hand_switch_prob=hand_switch_prob,
+        autoreset_mode=AutoresetMode.DISABLED, hand_switch_prob=hand_switch_prob,
     )  # fmt: skip
     obs, info = envs.reset(seed=seed)
     states = info["macrostate"]

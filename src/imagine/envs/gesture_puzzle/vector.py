@@ -12,8 +12,11 @@ after an episode ends resets that sub-environment and ignores its action, with r
 ``SAME_STEP`` (the reset happens in the step that ends the episode; the last observation and
 macrostate go to ``info["final_obs"]`` and ``info["final_macrostate"]``, marked by
 ``info["_final_obs"]``) or ``DISABLED`` (no resets but those asked for with
-``reset(options={"reset_mask": ...})``). ``info["macrostate"]`` is an int64 (N, 4) array
-and ``info["actions"]`` the actions taken so far in each episode.
+``reset(options={"reset_mask": ...})``; until then a sub-environment whose episode ended is
+not stepped: its action is ignored, its reward is 0, it is not terminated or truncated again,
+its observation stays and its generator draws nothing, so N test episodes cost only the
+running ones). ``info["macrostate"]`` is an int64 (N, 4) array and ``info["actions"]`` the
+actions taken so far in each episode.
 """
 
 from __future__ import annotations
@@ -88,7 +91,9 @@ class GesturePuzzleVectorEnv(VectorEnv):
         self._states = np.zeros((num_envs, 4), dtype=np.int64)
         self._fragments = np.zeros((num_envs, 4), dtype=np.int64)
         self._actions = np.zeros(num_envs, dtype=np.int64)
+        # NEXT_STEP: reset at the next step; DISABLED: ended, not stepped until reset
         self._autoreset = np.zeros(num_envs, dtype=bool)
+        self._last_obs: np.ndarray | None = None
 
     @functools.cached_property
     def observation_space(self) -> gym.spaces.Box:
@@ -149,7 +154,8 @@ class GesturePuzzleVectorEnv(VectorEnv):
         self._actions[envs] = 0
         self._autoreset[envs] = False
         self._observe(envs)
-        return self._observation(), self._info()
+        self._last_obs = self._observation()
+        return self._last_obs, self._info()
 
     def _seed_list(self, seed: int | list[int | None] | None) -> list[int | None]:
         if seed is None:
@@ -198,14 +204,21 @@ class GesturePuzzleVectorEnv(VectorEnv):
             obs = final_obs.copy()  # only the ended episodes' observations change
             obs[ended] = self.composer.observe(self._states[ended], self._fragments[ended])
         elif self.autoreset_mode == AutoresetMode.DISABLED:
-            self._observe(np.arange(self.num_envs))
-            obs = self._observation()
+            moved = np.flatnonzero(stepping)
+            self._observe(moved)
+            if len(moved) == self.num_envs:
+                obs = self._observation()
+            else:  # the ended ones keep their last observation
+                obs = self._last_obs.copy()
+                obs[moved] = self.composer.observe(self._states[moved], self._fragments[moved])
+            self._autoreset |= terminated | truncated  # ended: not stepped until reset
         else:
             self._draw_starts(np.flatnonzero(resetting))
             self._actions[resetting] = 0
             self._observe(np.arange(self.num_envs))
             self._autoreset = terminated | truncated
             obs = self._observation()
+        self._last_obs = obs
         return (
             obs,
             reward.astype(np.float64),
