@@ -415,6 +415,20 @@ def iqm_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
     return "\n".join(lines)
 
 
+def curves_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
+                 budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
+    """Each setting's learning curve over the budgets (``imagine reproduce``'s curves table):
+    the area under the success curve per seed (mean, IQM [95% bootstrap CI]) and the episodes
+    to 90%."""
+    from imagine.study.report import curve_summary, curve_table
+
+    rows = []
+    for setting in settings:
+        jobs = jobs_of(setting, out, tasks, seeds, budgets, vae)
+        rows += [{**r, "method": SHORT[setting]} for r in load_evaluations(jobs)]
+    return curve_table(curve_summary(rows)).replace("| method |", "| setting |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -448,6 +462,9 @@ def main() -> None:
     print(table(settings, args.out, tasks, args.seeds, budgets, args.vae))
     print()
     print(iqm_table(settings, args.out, tasks, args.seeds, budgets, args.vae))
+    if len(budgets) > 2:  # a learning curve
+        print()
+        print(curves_table(settings, args.out, tasks, args.seeds, budgets, args.vae))
 
 
 if __name__ == "__main__":
