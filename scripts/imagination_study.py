@@ -281,6 +281,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "value_expansion_weighting": "steve",
         },
     ),
+    "augmented, as s50, 5 members of M (the control for s55: plain MVE through member 0)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "value_expansion": 2, "model_ensemble": 5},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -417,8 +417,13 @@ def test_disabled_autoreset_resets_only_what_is_asked() -> None:
     lengths = info["actions"].copy()
     assert (lengths >= 1).all() and (lengths <= rules.MAX_EPISODE_ACTIONS).all()
     mask = np.array([True, False, False])
-    _, info = envs.reset(options={"reset_mask": mask})
+    obs, info = envs.reset(options={"reset_mask": mask})
     assert info["actions"].tolist() == [0, *lengths[1:]]
+    held = obs[1:].copy()
+    obs, reward, *_, info = envs.step(np.zeros(3, dtype=np.int64))  # the reset one runs again
+    assert info["actions"].tolist() == [1, *lengths[1:]]
+    np.testing.assert_array_equal(obs[1:], held)
+    assert (reward[1:] == 0.0).all() and reward[0] != 0.0
 
 
 @pytest.mark.parametrize("p", [0.0, 0.3], ids=["paper", "stochastic-human"])

@@ -26,11 +26,11 @@ gives every horizon j = 0..H a candidate inner value per member,
 (W_0 = Q'(z'), equation 1's), and the target is y = r + gamma (1 - d) sum_j w_j mean_k W_j^k
 with inverse-variance weights w_j proportional to 1 / sigma_j^2. STEVE takes sigma_j^2 over
 ensembles of M, r and Q; here only M is an ensemble, so sigma_j^2 is the members' variance of
-W_j^k plus the bootstrap's share, (mean_k c_j^k)^2 sigma_Q^2, with sigma_Q^2 Q's error
-variance estimated, per agent and without labels, by the batch's mean squared TD error under
-equation 1. Where the members agree, longer horizons weigh more (their bootstrap is
-discounted by gamma^j); where they part, the weight returns to the short horizons and, at the
-limit, to equation 1.
+W_j^k (over the K members, dividing by K as STEVE does) plus the bootstrap's share,
+(mean_k c_j^k)^2 sigma_Q^2, with sigma_Q^2 Q's error variance estimated, per agent and
+without labels, by the batch's mean squared TD error under equation 1. Where the members
+agree, longer horizons weigh more (their bootstrap is discounted by gamma^j); where they
+part, the weight returns to the short horizons and, at the limit, to equation 1.
 """
 
 from __future__ import annotations
@@ -77,16 +77,19 @@ def steve_target(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """STEVE's target y (P, B) for real transitions (z, a, r, z', d) (P, B, ...) through the
     members of an ensemble M, as the module describes; with each agent's mean horizon
-    sum_j j w_j over its batch (P,)."""
+    sum_j j w_j over the batch's transitions that did not end (P,; 0 where all ended)."""
     values, continuations = member_values(controller, model, next_z, horizon)
     q = controller.q(z).gather(-1, action.unsqueeze(-1)).squeeze(-1)
     q_variance = (controller.td_target(reward, next_z, done) - q).square().mean(-1)  # (P,)
-    variance = values.var(2) + continuations.mean(2).square() * q_variance[None, :, None]
+    members = values.var(2, correction=0)  # over the K members, as STEVE's moments
+    variance = members + continuations.mean(2).square() * q_variance[None, :, None]
     weights = 1.0 / (variance + 1e-8)  # (H + 1, P, B)
     weights = weights / weights.sum(0, keepdim=True)
     inner = (weights * values.mean(2)).sum(0)
     steps = torch.arange(horizon + 1, dtype=weights.dtype, device=weights.device)
-    mean_horizon = (weights * steps[:, None, None]).sum(0).mean(-1)
+    going = 1.0 - done  # where the real transition ended, the rollout does not count
+    per_row = (weights * steps[:, None, None]).sum(0)
+    mean_horizon = (per_row * going).sum(-1) / going.sum(-1).clamp(min=1.0)
     return reward + controller.gamma * (1.0 - done) * inner, mean_horizon
 
 

@@ -154,8 +154,15 @@ class GesturePuzzleVectorEnv(VectorEnv):
         self._actions[envs] = 0
         self._autoreset[envs] = False
         self._observe(envs)
-        self._last_obs = self._observation()
-        return self._last_obs, self._info()
+        obs = self._observation()
+        self._hold(obs)
+        return obs, self._info()
+
+    def _hold(self, obs: np.ndarray) -> None:
+        """Keep the observations a held sub-environment shows again (DISABLED mode only; a
+        copy, so that a caller may change what it was given)."""
+        if self.autoreset_mode == AutoresetMode.DISABLED:
+            self._last_obs = obs.copy()
 
     def _seed_list(self, seed: int | list[int | None] | None) -> list[int | None]:
         if seed is None:
@@ -208,8 +215,8 @@ class GesturePuzzleVectorEnv(VectorEnv):
             self._observe(moved)
             if len(moved) == self.num_envs:
                 obs = self._observation()
-            else:  # the ended ones keep their last observation
-                obs = self._last_obs.copy()
+            else:  # the ended ones keep their last observation (_hold stores a copy)
+                obs = self._last_obs
                 obs[moved] = self.composer.observe(self._states[moved], self._fragments[moved])
             self._autoreset |= terminated | truncated  # ended: not stepped until reset
         else:
@@ -218,7 +225,7 @@ class GesturePuzzleVectorEnv(VectorEnv):
             self._observe(np.arange(self.num_envs))
             self._autoreset = terminated | truncated
             obs = self._observation()
-        self._last_obs = obs
+        self._hold(obs)
         return (
             obs,
             reward.astype(np.float64),
