@@ -20,9 +20,7 @@ import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
 
-from imagine.envs.gesture_puzzle import GesturePuzzleVectorEnv
-from imagine.envs.gesture_puzzle.evaluation import greedy_success
-from imagine.envs.gesture_puzzle.rules import REWARD_GOAL
+from imagine.envs.gesture_puzzle.evaluation import greedy_success, policy_success
 from imagine.learning.agent import greedy_actions, load_agent
 
 
@@ -41,23 +39,10 @@ class TimedEncoder:
 
 def reference_success(controller, encoder, task: str, episodes: int, seed: int, p: float):
     """The loop before holding ended episodes: every sub-environment stepped (SAME_STEP)."""
-    envs = GesturePuzzleVectorEnv(episodes, task=task, autoreset_mode=AutoresetMode.SAME_STEP,
-                                  hand_switch_prob=p)  # fmt: skip
-    obs, info = envs.reset(seed=seed)
-    states = info["macrostate"]
-    running = np.ones(episodes, dtype=bool)
-    success = np.zeros(episodes, dtype=bool)
-    returns = np.zeros(episodes)
-    actions = np.zeros(episodes, dtype=np.int64)
-    while running.any():
-        live = np.flatnonzero(running)
-        actions[live] = greedy_actions(controller, encoder, obs[live], states[live])
-        obs, reward, terminated, truncated, info = envs.step(actions)
-        returns += np.where(running, reward, 0.0)
-        success |= running & (reward == REWARD_GOAL)
-        running &= ~(terminated | truncated)
-        states = info["macrostate"]
-    return {"success": float(success.mean()), "mean_return": float(returns.mean())}
+    return policy_success(
+        lambda obs, states: greedy_actions(controller, encoder, obs, states), task, episodes,
+        seed, hand_switch_prob=p, autoreset_mode=AutoresetMode.SAME_STEP,
+    )  # fmt: skip
 
 
 def main() -> None:

@@ -55,14 +55,17 @@ def policy_success(
     seed: int,
     composer=None,
     hand_switch_prob: float = 0.0,
+    autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
 ) -> dict[str, float]:
     """``episodes`` test episodes at once of any ``policy`` (images (N, 64, 64, 3) and true
     macrostates (N, 4) -> actions (N,)): success rate with its 95% Wilson interval, mean
     return with its 95% interval. Episode k starts from ``seed + k`` as in :func:`greedy_success`,
-    so every agent (ours or a peer's) meets the same test episodes."""
-    envs = GesturePuzzleVectorEnv(  # DISABLED: an ended episode costs nothing more
+    so every agent (ours or a peer's) meets the same test episodes. ``autoreset_mode``: DISABLED
+    holds an ended episode, so it costs nothing more; SAME_STEP (the loop before, for
+    ``benchmarks/evaluation_speed.py``) steps all until the last ends, with the same results."""
+    envs = GesturePuzzleVectorEnv(
         episodes, task=task, fragments=None if composer is None else composer.pool,
-        autoreset_mode=AutoresetMode.DISABLED, hand_switch_prob=hand_switch_prob,
+        autoreset_mode=autoreset_mode, hand_switch_prob=hand_switch_prob,
     )  # fmt: skip
     obs, info = envs.reset(seed=seed)
     states = info["macrostate"]
