@@ -40,7 +40,7 @@ class TimedEncoder:
 def reference_success(controller, encoder, task: str, episodes: int, seed: int, p: float):
     """The loop before holding ended episodes: every sub-environment stepped (SAME_STEP)."""
     return policy_success(
-        lambda obs, states: greedy_actions(controller, encoder, obs, states), task, episodes,
+        lambda obs, states, rows: greedy_actions(controller, encoder, obs, states), task, episodes,
         seed, hand_switch_prob=p, autoreset_mode=AutoresetMode.SAME_STEP,
     )  # fmt: skip
 

@@ -36,7 +36,7 @@ SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
-               "reward_dropout": None}  # fmt: skip
+               "reward_dropout": None, "belief": "observation"}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
 squared error for r and a residual M with 20% dropout): every setting starts from it, so a
 setting means what it meant when it ran."""
@@ -284,6 +284,11 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "augmented, as s50, 5 members of M (the control for s55: plain MVE through member 0)": (
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "value_expansion": 2, "model_ensemble": 5},
+    ),
+    # round 11: C acts on V's observation filtered through M's prediction of it
+    "augmented, as s44, C acts on a belief filtered through M (w = 0.5)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "belief_weight": 0.5},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}

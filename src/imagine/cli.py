@@ -495,7 +495,7 @@ def evaluate_agent(
         imagined_accuracy,
         model_accuracy,
     )
-    from imagine.learning.agent import load_agent
+    from imagine.learning.agent import belief_tracker, load_agent
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
@@ -504,7 +504,11 @@ def evaluate_agent(
         return
     p = agent.config.hand_switch_prob
     result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
-                            hand_switch_prob=p)  # fmt: skip
+                            hand_switch_prob=p, belief=belief_tracker(agent, n))  # fmt: skip
+    if belief_tracker(agent, n) is not None:  # the same agent acting on V's means
+        result["success_observation"] = greedy_success(
+            agent.controller, agent.encoder, agent.config.task, n, seed, hand_switch_prob=p
+        )["success"]
     accuracy = imagined = imagined_other = calibration = calibration_all = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
@@ -527,6 +531,9 @@ def evaluate_agent(
     print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes; "
           "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f})"
           .format(**result))  # fmt: skip
+    if "success_observation" in result:
+        print(f"C acts on a filtered belief (w = {agent.config.filter_weight}); on V's means "
+              f"alone it succeeds {100 * result['success_observation']:.1f}%")  # fmt: skip
     if accuracy is None:
         print("M accuracy: not measured (a baseline run does not train M)")
         return

@@ -314,6 +314,18 @@ class AgentConfig:
     (every horizon 0..H, each member of an ensemble M rolling out alone, weighted by the
     inverse of its variance over the members and the bootstrap's: STEVE, Buckman et al.
     2018; needs ``model_ensemble`` >= 2)."""
+    belief: str = "observation"
+    """What C acts on: observation (V's mean mu_t of the current image; the paper) or filtered
+    (augmented only, from I_start on: the belief b_t = w m(b_{t-1}, a_{t-1}) + (1 - w) mu_t,
+    b_0 = mu_0, with m M's most likely next state and w ``belief_weight``: a filter of constant
+    gain that averages V's reading of the image with M's prediction of it;
+    :mod:`imagine.learning.belief`). C still learns from V's means; only the states it acts on
+    are filtered. With V, a fresh image's latent lies about as far from its macrostate's mean
+    as the nearest other macrostate does, and M's prediction of it is that mean (README, issue
+    14, round 11)."""
+    belief_weight: float = 0.5
+    """w of the ``filtered`` belief: the weight of M's prediction against V's observation, in
+    [0, 1)."""
     imagination_temperature: float = 1.0
     """tau of imagination's draws (``imagination_draw`` sample, component or outcome): weights
     proportional to pi^(1/tau) and scales sigma sqrt(tau), World Models' temperature. 1: M's
@@ -445,6 +457,13 @@ class AgentConfig:
     """Greedy test episodes of `imagine evaluate`."""
 
     @property
+    def filter_weight(self) -> float:
+        """w of the belief C acts on once it imagines (0: it acts on V's means): an augmented
+        agent's ``belief_weight`` when ``belief`` is filtered (the baseline has no M)."""
+        filtered = self.belief == "filtered" and self.method == "augmented"
+        return self.belief_weight if filtered else 0.0
+
+    @property
     def trains_model(self) -> bool:
         """Whether M is trained: always for augmented, for the baseline only on request."""
         return self.method == "augmented" or self.baseline_trains_m
@@ -459,7 +478,8 @@ class AgentConfig:
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
                    "imagination_uncertainty": UNCERTAINTIES,
-                   "value_expansion_weighting": ("mve", "steve")}  # fmt: skip
+                   "value_expansion_weighting": ("mve", "steve"),
+                   "belief": ("observation", "filtered")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(
@@ -501,6 +521,8 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.hand_switch_prob must be in [0, 1], got {self.hand_switch_prob}"
             )
+        if not 0.0 <= self.belief_weight < 1.0:
+            raise ConfigError(f"agent.belief_weight must be in [0, 1), got {self.belief_weight}")
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"agent.gamma must be in [0, 1], got {self.gamma}")
         if not (self.imagination_epsilon == -1.0 or 0.0 <= self.imagination_epsilon <= 1.0):

@@ -40,6 +40,7 @@ from imagine.config import AgentConfig, from_dict
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
 from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint, save_agent
+from imagine.learning.belief import BeliefTracker
 from imagine.learning.extras import extras_of
 from imagine.learning.population import new_networks
 from imagine.models.controller import Controller
@@ -106,6 +107,7 @@ class Agent:
     memory_starts: tuple[torch.Tensor, torch.Tensor] | None = None
     """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
     ``support`` uncertainty measures against, :mod:`imagine.learning.gate`); None if not saved."""
+    _belief: BeliefTracker | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @classmethod
     def load(cls, folder: str | Path) -> Agent:
@@ -118,12 +120,19 @@ class Agent:
         macrostates: np.ndarray | None = None,
         epsilon: float = 0.0,
         rng: np.random.Generator | None = None,
+        episode_start: bool | np.ndarray = True,
     ) -> np.ndarray:
         """C's actions for observations: uint8 images (N, 64, 64, 3), or one (64, 64, 3) for
         one action (another environment's: a batch of its observations, or one). Greedy
         (argmax_a Q(mu, a) with mu from the encoder), or with ``epsilon`` a uniform random
         action that often, drawn from ``rng``. ``macrostates`` (N, 4) only for the oracle
-        encoder, which reads the true state instead of the image."""
+        encoder, which reads the true state instead of the image.
+
+        An agent that acts on a filtered belief (``belief: filtered``, :mod:`imagine.learning.
+        belief`) keeps one per row between calls: ``episode_start`` (one bool, or one per row)
+        says which observations start an episode; False continues the episode of the same
+        row of the previous call (the same N). True everywhere (the default) acts on V's means,
+        as the first step of an episode does."""
         images = np.asarray(observations)
         one = images.ndim == getattr(self.encoder, "observation_ndim", 3)
         if one:
@@ -131,13 +140,32 @@ class Agent:
             macrostates = None if macrostates is None else np.asarray(macrostates)[None]
         if self.config.encoder == "oracle" and macrostates is None:
             raise ConfigError("an oracle-encoder agent acts on macrostates: pass macrostates")
-        actions = greedy_actions(self.controller, self.encoder, images, macrostates)
+        belief, rows = self._episodes(len(images), episode_start), np.arange(len(images))
+        actions = greedy_actions(self.controller, self.encoder, images, macrostates, belief, rows)
         if epsilon > 0:
             rng = rng if rng is not None else np.random.default_rng()
             explore = rng.random(len(actions)) < epsilon
             actions = np.where(explore, rng.integers(self.controller.n_actions, size=len(actions)),
                                actions)  # fmt: skip
+        if belief is not None and epsilon > 0:  # M predicts from the action taken
+            belief.acted(torch.as_tensor(actions), torch.as_tensor(rows))
         return actions[0] if one else actions
+
+    def _episodes(self, n: int, episode_start: bool | np.ndarray) -> BeliefTracker | None:
+        """The belief tracker of :meth:`act`'s ``n`` rows (None if this agent acts on mu), with
+        the rows that start an episode restarted."""
+        if self.config.filter_weight <= 0 or self.episode < self.config.imagination_start:
+            return None
+        start = np.broadcast_to(np.asarray(episode_start, dtype=bool), (n,))
+        if self._belief is None or len(self._belief.started) != n:
+            if not start.all():
+                raise ConfigError(
+                    "episode_start=False continues an episode of the previous call: give it "
+                    "as many observations as that call, after a call that started them"
+                )
+            self._belief = belief_tracker(self, n)
+        self._belief.restart(torch.as_tensor(np.flatnonzero(start)))
+        return self._belief
 
     def save(self, folder: str | Path) -> Path:
         """Write this agent (its config, C, M and the start states of its M_R where it has
@@ -153,17 +181,36 @@ class Agent:
 
 @torch.no_grad()
 def greedy_actions(
-    controller: Controller, encoder, images: np.ndarray, states: np.ndarray | None
+    controller: Controller,
+    encoder,
+    images: np.ndarray,
+    states: np.ndarray | None,
+    belief: BeliefTracker | None = None,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """argmax_a Q(mu, a) for a batch of observations (images (N, 64, 64, 3) for GesturePuzzle),
-    mu from the encoder: int64 (N,)."""
+    mu from the encoder: int64 (N,). With a ``belief`` tracker, Q of the belief of each of
+    ``rows`` (its episodes) instead of mu, and the actions recorded in it."""
     mu, _ = encoder.encode(images, states)
+    if belief is not None:
+        mu = belief.observe(mu, torch.as_tensor(rows))
     device = next(controller.parameters()).device
     was_training = controller.training
     controller.eval()
     actions = controller(mu.to(device)).argmax(-1).cpu().numpy()
     controller.train(was_training)
+    if belief is not None:
+        belief.acted(torch.as_tensor(actions), torch.as_tensor(rows))
     return actions
+
+
+def belief_tracker(agent: Agent, n: int) -> BeliefTracker | None:
+    """The belief of ``n`` episodes of ``agent`` side by side, if it acts on one (an augmented
+    agent with ``belief: filtered`` past its I_start); None if it acts on V's means."""
+    c = agent.config
+    if c.filter_weight <= 0 or agent.episode < c.imagination_start:
+        return None
+    return BeliefTracker(agent.model, c.filter_weight, n, agent.encoder.latent_dim)
 
 
 def saved_config(folder: Path) -> AgentConfig | None:

@@ -38,6 +38,7 @@ from imagine.checkpoint import (
 from imagine.config import AgentConfig
 from imagine.envs.spec import EnvSpec, make_spec
 from imagine.errors import CheckpointError, ConfigError
+from imagine.learning.belief import fuse
 from imagine.learning.extras import extras_of
 from imagine.learning.gate import (
     TRUST_RECENT,
@@ -145,6 +146,7 @@ class Population:
         self._starting = [True] * P  # the next step starts a new episode
         self.mu = torch.zeros(P, d, device=self.device)
         self.sigma = torch.zeros(P, d, device=self.device)
+        self.belief = torch.zeros(P, d, device=self.device)  # what C acts on (learning/belief)
         self._episode = [EpisodeTotals() for _ in range(P)]
         self._loss_sum: dict[str, torch.Tensor] = {}
         self._loss_count: dict[str, torch.Tensor] = {}
@@ -176,7 +178,7 @@ class Population:
         rows = torch.as_tensor(live, device=self.device)
         gens = [g if self.active[i] else None for i, g in enumerate(self.generators)]
         eps = [self.epsilon(i) for i in range(self.size)]
-        action = self.controller.act(self.mu.unsqueeze(1), eps, gens)[:, 0]
+        action = self.controller.act(self.belief.unsqueeze(1), eps, gens)[:, 0]
         obs, reward, terminated, truncated, info = self.envs.step(action.cpu().numpy())
         self._env_done |= terminated | truncated
         won = self.spec.success(reward, info)
@@ -201,6 +203,7 @@ class Population:
             past = [i for i in live if self.episode[i] >= c.imagination_start]
             self._learn_from_real(past, c.n_imaginary_updates, "losses/controller_real_extra")
         self._imagine(live, eps)
+        self.belief[rows] = self._next_belief(live, action, next_mu)
         self.mu[rows], self.sigma[rows] = next_mu, next_sigma
         ended = []
         for i in live:
@@ -235,9 +238,28 @@ class Population:
         rows = torch.as_tensor(starting, device=self.device)
         x, extra = self.spec.encoder_input(obs, info)
         self.mu[rows], self.sigma[rows] = self._encode(starting, x, extra)
+        self.belief[rows] = self.mu[rows]  # b_0 = mu_0
         for i in starting:
             self._starting[i] = False
             self._episode[i] = EpisodeTotals()
+
+    def _next_belief(self, live: list[int], action: torch.Tensor, next_mu: torch.Tensor):
+        """The beliefs of the ``live`` agents after their step (``next_mu``: V's means of their
+        new observations): b' = w m(b, a) + (1 - w) mu' for an agent that filters
+        (``filter_weight`` w > 0) and imagines already (from I_start), else mu'
+        (:mod:`imagine.learning.belief`)."""
+        weights = [self.configs[i].filter_weight for i in live]
+        filtering = [
+            k for k, i in enumerate(live)
+            if weights[k] > 0 and self.episode[i] >= self.configs[i].imagination_start
+        ]  # fmt: skip
+        if not filtering:
+            return next_mu
+        m = self.model.mode(self.belief.unsqueeze(1), action.view(-1, 1))[:, 0]
+        belief = next_mu.clone()
+        for k in filtering:
+            belief[k] = fuse(m[live[k]], next_mu[k], weights[k])
+        return belief
 
     def _encode(self, agents: list[int], x, extra) -> tuple[torch.Tensor, torch.Tensor]:
         """The encoder's posterior of the agents' observations (``x``, ``extra``: what the

@@ -87,8 +87,8 @@ def _budget_callback(folder: Path, budgets: list[int], eval_episodes: int, eval_
             if self.episodes in budgets and not evaluation_path(folder, self.episodes).is_file():
                 model = self.model
                 result = policy_success(
-                    lambda obs, states: model.predict(obs, deterministic=True)[0], values["task"],
-                    eval_episodes, eval_seed, hand_switch_prob=hand_switch_prob,
+                    lambda obs, states, rows: model.predict(obs, deterministic=True)[0],
+                    values["task"], eval_episodes, eval_seed, hand_switch_prob=hand_switch_prob,
                 )  # fmt: skip
                 write_json(evaluation_path(folder, self.episodes),
                            {**values, "budget": self.episodes, "time_steps": self.num_timesteps,

@@ -24,6 +24,7 @@ from imagine.envs.gesture_puzzle.rules import (
 from imagine.envs.gesture_puzzle.vector import GesturePuzzleVectorEnv
 from imagine.intervals import mean_interval, wilson_interval
 from imagine.learning.agent import greedy_actions
+from imagine.learning.belief import BeliefTracker
 from imagine.learning.gate import gate_threshold, gate_transitions, support_distance
 from imagine.learning.imagination import imagine_rollouts, posterior_scale
 from imagine.models.controller import Controller, PopulationController
@@ -39,17 +40,20 @@ def greedy_success(
     seed: int,
     composer=None,
     hand_switch_prob: float = 0.0,
+    belief: BeliefTracker | None = None,
 ) -> dict[str, float]:
-    """Run ``episodes`` greedy test episodes at once; success = the episode reached a goal."""
+    """Run ``episodes`` greedy test episodes at once; success = the episode reached a goal.
+    C acts on V's means, or on the beliefs of ``belief`` (a tracker of ``episodes`` rows,
+    :func:`imagine.learning.agent.belief_tracker`)."""
     return policy_success(
-        lambda obs, states: greedy_actions(controller, encoder, obs, states), task, episodes,
-        seed, composer, hand_switch_prob,
+        lambda obs, states, rows: greedy_actions(controller, encoder, obs, states, belief, rows),
+        task, episodes, seed, composer, hand_switch_prob,
     )  # fmt: skip
 
 
 @torch.no_grad()
 def policy_success(
-    policy: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    policy: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     task: str,
     episodes: int,
     seed: int,
@@ -57,10 +61,11 @@ def policy_success(
     hand_switch_prob: float = 0.0,
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
 ) -> dict[str, float]:
-    """``episodes`` test episodes at once of any ``policy`` (images (N, 64, 64, 3) and true
-    macrostates (N, 4) -> actions (N,)): success rate with its 95% Wilson interval, mean
-    return with its 95% interval. Episode k starts from ``seed + k`` as in :func:`greedy_success`,
-    so every agent (ours or a peer's) meets the same test episodes. ``autoreset_mode``: DISABLED
+    """``episodes`` test episodes at once of any ``policy`` (images (N, 64, 64, 3), true
+    macrostates (N, 4) and the N episodes' indices -> actions (N,)): success rate with its 95%
+    Wilson interval, mean return with its 95% interval. Episode k starts from ``seed + k`` as
+    in :func:`greedy_success`, so every agent (ours or a peer's) meets the same test episodes.
+    ``autoreset_mode``: DISABLED
     holds an ended episode, so it costs nothing more; SAME_STEP (the loop before, for
     ``benchmarks/evaluation_speed.py``) steps all until the last ends, with the same results."""
     envs = GesturePuzzleVectorEnv(
@@ -75,7 +80,7 @@ def policy_success(
     actions = np.zeros(episodes, dtype=np.int64)
     while running.any():
         live = np.flatnonzero(running)  # only episodes still running need V and C
-        actions[live] = policy(obs[live], states[live])
+        actions[live] = policy(obs[live], states[live], live)
         obs, reward, terminated, truncated, info = envs.step(actions)
         returns += np.where(running, reward, 0.0)
         success |= running & (reward == REWARD_GOAL)

@@ -1,0 +1,65 @@
+"""C's belief: V's reading of the image, filtered through M's prediction of it (issue 14).
+
+The paper's C acts on z_t, V's latent of the current image. V's latent of an image moves with
+what does not matter to the task (which fragment, the lighting, the jitter) about as far as it
+moves between neighbouring macrostates, while M, trained on the images' means, predicts the
+next state's mean. An augmented agent can average the two, a filter of constant gain w:
+
+    b_0 = mu_0,    b_t = w m(b_{t-1}, a_{t-1}) + (1 - w) mu_t,
+
+with m M's most likely next state (the mean of its heaviest component; member 0 of an
+ensemble). w = 0 is the paper's C. The baseline has no M and always acts on mu_t.
+:class:`BeliefTracker` keeps b and the last action per row of a batch of episodes.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from imagine.models.world_model import WorldModel
+
+
+def fuse(prediction: torch.Tensor, mu: torch.Tensor, weight: float) -> torch.Tensor:
+    """w m + (1 - w) mu: M's prediction and V's observation of the same step, averaged."""
+    return weight * prediction + (1.0 - weight) * mu
+
+
+class BeliefTracker:
+    """The beliefs of ``n`` episodes run side by side by one agent (single-agent M).
+
+    :meth:`observe` takes V's means of some rows' new observations and returns the states C
+    should act on; :meth:`acted` records the actions taken; :meth:`restart` marks rows whose
+    next observation starts an episode. With ``weight`` 0 or no ``model`` it returns mu."""
+
+    def __init__(self, model: WorldModel | None, weight: float, n: int, latent_dim: int):
+        self.model = model if weight > 0 else None
+        self.weight = weight
+        self.belief = torch.zeros(n, latent_dim)
+        self.action = torch.zeros(n, dtype=torch.long)
+        self.started = torch.zeros(n, dtype=torch.bool)
+
+    @torch.no_grad()
+    def observe(self, mu: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """The beliefs (len(rows), D) of ``rows`` after their new observations' means ``mu``."""
+        if self.model is None:
+            return mu
+        rows = torch.as_tensor(rows, dtype=torch.long)
+        belief = mu.clone()
+        going = self.started[rows]
+        if going.any():
+            past = rows[going]
+            mdn = self.model.members[0]
+            was_training = mdn.training
+            mdn.eval()  # M's most likely next state, without dropout
+            m = mdn.most_likely(self.belief[past], self.action[past])
+            mdn.train(was_training)
+            belief[going] = fuse(m, mu[going], self.weight)
+        self.belief[rows] = belief
+        self.started[rows] = True
+        return belief
+
+    def acted(self, actions: torch.Tensor, rows: torch.Tensor) -> None:
+        self.action[torch.as_tensor(rows, dtype=torch.long)] = torch.as_tensor(actions)
+
+    def restart(self, rows: torch.Tensor) -> None:
+        self.started[torch.as_tensor(rows, dtype=torch.long)] = False

@@ -1,0 +1,94 @@
+"""C's belief (issue 14, round 11): V's observation filtered through M's prediction of it."""
+
+import numpy as np
+import pytest
+import torch
+
+from imagine.config import agent_preset
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+from imagine.errors import ConfigError
+from imagine.learning.agent import belief_tracker, load_agent
+from imagine.learning.belief import BeliefTracker, fuse
+from imagine.learning.population import Population
+from imagine.learning.training import train
+from imagine.models.world_model import WorldModel
+
+
+def test_the_belief_averages_ms_prediction_and_vs_observation():
+    torch.manual_seed(0)
+    model = WorldModel(4, n_actions=6, dropout=0.2, residual=True).train()  # dropout: not used
+    mdn = model.members[0]
+    tracker = BeliefTracker(model, 0.5, n=3, latent_dim=4)
+    mu0, mu1, mu2 = torch.randn(3, 4), torch.randn(3, 4), torch.randn(3, 4)
+    rows = torch.arange(3)
+    assert torch.equal(tracker.observe(mu0, rows), mu0)  # b_0 = mu_0
+    a = torch.tensor([0, 3, 5])
+    tracker.acted(a, rows)
+    two = torch.tensor([0, 2])  # row 1 has ended: only 0 and 2 observe
+    b1 = tracker.observe(mu1[two], two)
+    mdn.eval()
+    expected = 0.5 * mdn.most_likely(mu0[two], a[two]) + 0.5 * mu1[two]
+    assert torch.allclose(b1, expected, atol=1e-6)
+    assert model.training  # the tracker leaves the module's mode as it found it
+    tracker.acted(torch.tensor([1, 2]), two)
+    tracker.restart(torch.tensor([0]))  # row 0 starts a new episode
+    b2 = tracker.observe(mu2[two], two)
+    mdn.eval()
+    assert torch.equal(b2[0], mu2[0])
+    m = mdn.most_likely(b1[1:], torch.tensor([2]))  # recursive: from row 2's belief
+    assert torch.allclose(b2[1], fuse(m[0], mu2[2], 0.5), atol=1e-6)
+    assert torch.equal(BeliefTracker(model, 0.0, 3, 4).observe(mu1, rows), mu1)  # w = 0: mu
+
+
+def test_a_population_acts_on_the_filtered_belief():
+    config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
+                          belief="filtered", belief_weight=0.4)  # fmt: skip
+    population = Population([config], OracleEncoder())
+    checked = 0
+    for _ in range(300):  # early episodes are short: most end at their first step
+        if checked == 5:
+            break
+        starting = population._starting[0]  # this step starts an episode at b_0 = mu_0
+        before = population.belief.clone()
+        population.step()
+        if starting or population._starting[0]:  # (an ended episode's belief is not used)
+            continue
+        memory = population.real
+        action = memory.data["action"][0, memory.position[0] - 1].view(1, 1)
+        m = population.model.mode(before.unsqueeze(1), action)[:, 0]
+        expected = fuse(m[0], population.mu[0], 0.4)
+        assert torch.allclose(population.belief[0], expected, atol=1e-6)
+        assert not torch.equal(population.belief[0], population.mu[0])
+        checked += 1
+    assert checked >= 5
+
+
+def test_the_baseline_and_observation_belief_act_on_vs_means():
+    assert agent_preset("fast", method="baseline", belief="filtered").filter_weight == 0.0
+    assert agent_preset("smoke", belief="observation").filter_weight == 0.0
+    assert agent_preset("smoke", belief="filtered", belief_weight=0.3).filter_weight == 0.3
+    with pytest.raises(ConfigError, match="belief_weight must be in"):
+        agent_preset("smoke", belief_weight=1.0)
+    with pytest.raises(ConfigError, match="belief must be one of"):
+        agent_preset("smoke", belief="kalman")
+
+
+def test_agent_act_keeps_the_belief_between_the_steps_of_an_episode(tmp_path):
+    config = agent_preset("smoke", encoder="oracle", episodes=20, imagination_start=5,
+                          belief="filtered")  # fmt: skip
+    agent = train(config, tmp_path, threads=1)
+    states = np.array([[0, 1, 2, 0], [1, 2, 3, 1]])
+    moved = np.array([[1, 1, 2, 0], [1, 2, 0, 1]])
+    images = np.zeros((2, 64, 64, 3), dtype=np.uint8)  # the oracle reads the macrostates
+    with pytest.raises(ConfigError, match="episode_start=False continues an episode"):
+        load_agent(tmp_path).act(images, states, episode_start=False)
+    first = agent.act(images, states)
+    second = agent.act(images, moved, episode_start=np.array([False, True]))
+    mu0, _ = agent.encoder.encode(images, states)
+    mu1, _ = agent.encoder.encode(images, moved)
+    m = agent.model.members[0].most_likely(mu0[:1], torch.as_tensor(first[:1]))
+    belief = torch.cat([fuse(m, mu1[:1], 0.5), mu1[1:]])
+    assert np.array_equal(second, agent.controller(belief).argmax(-1).numpy())
+    # the test episodes' tracker is the same filter
+    assert belief_tracker(agent, 7) is not None
+    assert belief_tracker(load_agent(tmp_path), 7).weight == 0.5
