@@ -89,7 +89,7 @@ def test_population_agents_stop_apart_and_equal_alone(tmp_path):
 def test_test_episodes_do_not_depend_on_copies():
     spec = make_spec(toy_config())
 
-    def right_unless_at_start(x, extra):  # a fixed policy that depends on the observation
+    def right_unless_at_start(x, extra, copies):  # a fixed policy that depends on the observation
         return np.where(x[:, 0] < 0.3, 2, 1)
 
     one = run_episodes(spec, right_unless_at_start, 20, seed=3, copies=3)

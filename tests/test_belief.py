@@ -10,6 +10,7 @@ from imagine.errors import ConfigError
 from imagine.learning.agent import belief_tracker, load_agent
 from imagine.learning.belief import BeliefTracker, fuse
 from imagine.learning.population import Population
+from imagine.learning.test_episodes import GreedyPolicy
 from imagine.learning.training import train
 from imagine.models.world_model import WorldModel
 
@@ -67,6 +68,8 @@ def test_the_baseline_and_observation_belief_act_on_vs_means():
     assert agent_preset("fast", method="baseline", belief="filtered").filter_weight == 0.0
     assert agent_preset("smoke", belief="observation").filter_weight == 0.0
     assert agent_preset("smoke", belief="filtered", belief_weight=0.3).filter_weight == 0.3
+    for exact in ("vector", "onehot"):  # observations as they are: nothing to filter
+        assert agent_preset("smoke", belief="filtered", encoder=exact).filter_weight == 0.0
     with pytest.raises(ConfigError, match="belief_weight must be in"):
         agent_preset("smoke", belief_weight=1.0)
     with pytest.raises(ConfigError, match="belief must be one of"):
@@ -92,3 +95,12 @@ def test_agent_act_keeps_the_belief_between_the_steps_of_an_episode(tmp_path):
     # the test episodes' tracker is the same filter
     assert belief_tracker(agent, 7) is not None
     assert belief_tracker(load_agent(tmp_path), 7).weight == 0.5
+
+
+def test_test_episodes_of_any_env_restart_the_beliefs_of_copies_that_reset():
+    model = WorldModel(2, n_actions=3, dropout=0.0)
+    tracker = BeliefTracker(model, 0.5, n=4, latent_dim=2)
+    tracker.observe(torch.zeros(4, 2), torch.arange(4))
+    policy = GreedyPolicy(None, None, tracker)
+    policy.restart(np.array([1, 3]))
+    assert tracker.started.tolist() == [True, False, True, False]

@@ -585,10 +585,10 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     mean return (and success where the environment reports it) into RUN/evaluation.json."""
     from imagine.checkpoint import write_json
     from imagine.envs.spec import make_spec
-    from imagine.learning.test_episodes import greedy_policy, run_episodes
+    from imagine.learning.test_episodes import agent_policy, run_episodes
 
     spec = make_spec(agent.config)
-    result = run_episodes(spec, greedy_policy(agent.controller, agent.encoder), episodes, seed)
+    result = run_episodes(spec, agent_policy(agent, episodes), episodes, seed)
     write_json(run / "evaluation.json", {"after_episodes": agent.episode, "after_steps": agent.t,
                                          **result})  # fmt: skip
     print(f"{run}: {agent.config.method}, {agent.config.env}, after {agent.t} time steps "

@@ -459,9 +459,11 @@ class AgentConfig:
     @property
     def filter_weight(self) -> float:
         """w of the belief C acts on once it imagines (0: it acts on V's means): an augmented
-        agent's ``belief_weight`` when ``belief`` is filtered (the baseline has no M)."""
+        agent's ``belief_weight`` when ``belief`` is filtered (the baseline has no M), unless
+        its encoder hands C the observation as it is (vector, onehot)."""
         filtered = self.belief == "filtered" and self.method == "augmented"
-        return self.belief_weight if filtered else 0.0
+        exact = self.encoder in ("vector", "onehot")  # the state as it is: nothing to average
+        return self.belief_weight if filtered and not exact else 0.0
 
     @property
     def trains_model(self) -> bool:

@@ -19,8 +19,10 @@ import torch
 from imagine.envs.spec import EnvSpec, episode_seed, reset_ended
 from imagine.intervals import mean_interval, wilson_interval
 
-Policy = Callable[[np.ndarray, Any], np.ndarray]
-"""Actions, int64 (N,), for N observations as the spec hands them to an encoder (x, extra)."""
+Policy = Callable[[np.ndarray, Any, np.ndarray], np.ndarray]
+"""Actions, int64 (N,), for N observations as the spec hands them to an encoder (x, extra),
+and the copies (N,) they come from. A policy with a ``restart(copies)`` method is told which
+copies start a new episode (:class:`GreedyPolicy`'s belief)."""
 
 
 @torch.no_grad()
@@ -44,7 +46,7 @@ def run_episodes(
     while (episode_of < episodes).any():
         live = np.flatnonzero(episode_of < episodes)
         x, extra = spec.encoder_input(obs, info)
-        actions[live] = policy(x[live], None if extra is None else extra[live])
+        actions[live] = policy(x[live], None if extra is None else extra[live], live)
         obs, reward, terminated, truncated, info = envs.step(actions)
         total += reward
         length += 1
@@ -60,6 +62,8 @@ def run_episodes(
         returns[k], lengths[k], successes[k] = total[done], length[done], won[done]
         episode_of[done] = episode_of.max() + 1 + np.arange(len(done))
         obs, info = reset_ended(envs, ended, episode_of, seed)
+        if hasattr(policy, "restart"):
+            policy.restart(np.flatnonzero(ended))
         done = np.flatnonzero(ended)
         total[done], length[done], won[done] = 0.0, 0, False
     envs.close()
@@ -74,14 +78,38 @@ def run_episodes(
     return out
 
 
-def greedy_policy(controller, encoder) -> Policy:
-    """C's greedy actions on the encoder's mu."""
-    from imagine.learning.agent import greedy_actions
+class GreedyPolicy:
+    """C's greedy actions on the encoder's mu, or on the beliefs of ``belief`` (a tracker
+    with a row per copy, :func:`imagine.learning.agent.belief_tracker`)."""
 
-    return lambda x, extra: greedy_actions(controller, encoder, x, extra)
+    def __init__(self, controller, encoder, belief=None) -> None:
+        self.controller, self.encoder, self.belief = controller, encoder, belief
+
+    def __call__(self, x, extra, copies: np.ndarray) -> np.ndarray:
+        from imagine.learning.agent import greedy_actions
+
+        return greedy_actions(self.controller, self.encoder, x, extra, self.belief, copies)
+
+    def restart(self, copies: np.ndarray) -> None:
+        if self.belief is not None:
+            self.belief.restart(torch.as_tensor(copies))
+
+
+def greedy_policy(controller, encoder, belief=None) -> GreedyPolicy:
+    """C's greedy actions (:class:`GreedyPolicy`)."""
+    return GreedyPolicy(controller, encoder, belief)
+
+
+def agent_policy(agent, episodes: int, copies: int = 64) -> GreedyPolicy:
+    """An agent's greedy policy for :func:`run_episodes` (``episodes`` on ``copies``): on its
+    filtered belief where it acts on one."""
+    from imagine.learning.agent import belief_tracker
+
+    belief = belief_tracker(agent, min(copies, episodes))
+    return GreedyPolicy(agent.controller, agent.encoder, belief)
 
 
 def random_policy(n_actions: int, seed: int) -> Policy:
     """Uniform random actions (the floor every agent must beat)."""
     rng = np.random.default_rng(seed)
-    return lambda x, extra: rng.integers(n_actions, size=len(x))
+    return lambda x, extra, copies: rng.integers(n_actions, size=len(x))

@@ -26,7 +26,7 @@ from imagine.checkpoint import read_json, write_json
 from imagine.config import AgentConfig
 from imagine.envs.spec import gym_spec
 from imagine.errors import NumericalError
-from imagine.learning.test_episodes import greedy_policy, run_episodes
+from imagine.learning.test_episodes import agent_policy, run_episodes
 from imagine.study.report import iqm_interval
 
 EVAL_SEED = 1_000_000
@@ -73,8 +73,7 @@ def train_ours(
         for i, agent in zip(todo, result.agents, strict=True):
             if agent is None:
                 raise NumericalError(result.failures[todo.index(i)])
-            policy = greedy_policy(agent.controller, agent.encoder)
-            evaluation = run_episodes(spec, policy, episodes, EVAL_SEED)
+            evaluation = run_episodes(spec, agent_policy(agent, episodes), episodes, EVAL_SEED)
             write_json(evaluation_path(folders[i], budget),
                        {"method": config.method, "seed": seeds[i], "steps": budget,
                         **evaluation})  # fmt: skip
@@ -133,8 +132,8 @@ def sb3_evaluations(spec, folder: Path, seed: int, budgets: list[int], episodes:
             if steps in budgets:
                 model = self.model
                 evaluation = run_episodes(
-                    spec, lambda x, extra: model.predict(x, deterministic=True)[0], episodes,
-                    EVAL_SEED,
+                    spec, lambda x, extra, copies: model.predict(x, deterministic=True)[0],
+                    episodes, EVAL_SEED,
                 )  # fmt: skip
                 write_json(evaluation_path(folder, steps),
                            {"method": "sb3-dqn", "seed": seed, "steps": steps,
