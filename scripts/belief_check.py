@@ -43,14 +43,17 @@ def main() -> None:
     for run in args.runs:
         agent = load_agent(run)
         c, n = agent.config, args.episodes
-        cells = [greedy_success(agent.controller, agent.encoder, c.task, n, EVAL_SEED)["success"]]
+        p = c.hand_switch_prob
+        cells = [greedy_success(agent.controller, agent.encoder, c.task, n, EVAL_SEED,
+                                hand_switch_prob=p)["success"]]  # fmt: skip
         for w in weights:
             agent.config = dataclasses.replace(c, belief="filtered", belief_weight=w)
             cells.append(greedy_success(agent.controller, agent.encoder, c.task, n, EVAL_SEED,
+                                        hand_switch_prob=p,
                                         belief=belief_tracker(agent, n))["success"])  # fmt: skip
         agent.config = c
         on_means = true_state_policy(agent.controller, agent.encoder.state_latents())
-        cells.append(policy_success(on_means, c.task, n, EVAL_SEED)["success"])
+        cells.append(policy_success(on_means, c.task, n, EVAL_SEED, hand_switch_prob=p)["success"])
         print(f"| {run} | " + " | ".join(f"{100 * x:.1f}" for x in np.array(cells)) + " |",
               flush=True)  # fmt: skip
 

@@ -12,7 +12,7 @@ from imagine.learning.belief import BeliefTracker, fuse
 from imagine.learning.population import Population
 from imagine.learning.test_episodes import GreedyPolicy
 from imagine.learning.training import train
-from imagine.models.world_model import WorldModel
+from imagine.models.world_model import Mixture, WorldModel, mixture_mode, responsible_mean
 
 
 def test_the_belief_averages_ms_prediction_and_vs_observation():
@@ -28,7 +28,7 @@ def test_the_belief_averages_ms_prediction_and_vs_observation():
     two = torch.tensor([0, 2])  # row 1 has ended: only 0 and 2 observe
     b1 = tracker.observe(mu1[two], two)
     mdn.eval()
-    expected = 0.5 * mdn.most_likely(mu0[two], a[two]) + 0.5 * mu1[two]
+    expected = 0.5 * mdn.explain(mu0[two], a[two], mu1[two]) + 0.5 * mu1[two]
     assert torch.allclose(b1, expected, atol=1e-6)
     assert model.training  # the tracker leaves the module's mode as it found it
     tracker.acted(torch.tensor([1, 2]), two)
@@ -36,7 +36,7 @@ def test_the_belief_averages_ms_prediction_and_vs_observation():
     b2 = tracker.observe(mu2[two], two)
     mdn.eval()
     assert torch.equal(b2[0], mu2[0])
-    m = mdn.most_likely(b1[1:], torch.tensor([2]))  # recursive: from row 2's belief
+    m = mdn.explain(b1[1:], torch.tensor([2]), mu2[2:])  # recursive: from row 2's belief
     assert torch.allclose(b2[1], fuse(m[0], mu2[2], 0.5), atol=1e-6)
     assert torch.equal(BeliefTracker(model, 0.0, 3, 4).observe(mu1, rows), mu1)  # w = 0: mu
 
@@ -56,7 +56,8 @@ def test_a_population_acts_on_the_filtered_belief():
             continue
         memory = population.real
         action = memory.data["action"][0, memory.position[0] - 1].view(1, 1)
-        m = population.model.mode(before.unsqueeze(1), action)[:, 0]
+        observed = population.mu.unsqueeze(1)
+        m = population.model.explain(before.unsqueeze(1), action, observed)[:, 0]
         expected = fuse(m[0], population.mu[0], 0.4)
         assert torch.allclose(population.belief[0], expected, atol=1e-6)
         assert not torch.equal(population.belief[0], population.mu[0])
@@ -89,7 +90,7 @@ def test_agent_act_keeps_the_belief_between_the_steps_of_an_episode(tmp_path):
     second = agent.act(images, moved, episode_start=np.array([False, True]))
     mu0, _ = agent.encoder.encode(images, states)
     mu1, _ = agent.encoder.encode(images, moved)
-    m = agent.model.members[0].most_likely(mu0[:1], torch.as_tensor(first[:1]))
+    m = agent.model.members[0].explain(mu0[:1], torch.as_tensor(first[:1]), mu1[:1])
     belief = torch.cat([fuse(m, mu1[:1], 0.5), mu1[1:]])
     assert np.array_equal(second, agent.controller(belief).argmax(-1).numpy())
     # the test episodes' tracker is the same filter
@@ -104,3 +105,13 @@ def test_test_episodes_of_any_env_restart_the_beliefs_of_copies_that_reset():
     policy = GreedyPolicy(None, None, tracker)
     policy.restart(np.array([1, 3]))
     assert tracker.started.tolist() == [True, False, True, False]
+
+
+def test_the_component_that_explains_the_observation_is_ms_outcome_the_image_shows():
+    # two outcomes: the hand kept (weight 0.8, at 0) or moved (weight 0.2, at 4)
+    m = Mixture(torch.log(torch.tensor([[0.8, 0.2]])), torch.tensor([[[0.0, 0.0], [4.0, 4.0]]]),
+                torch.full((1, 2, 2), 0.5))  # fmt: skip
+    near_moved, between = torch.tensor([[3.5, 3.8]]), torch.tensor([[2.0, 2.0]])
+    assert torch.equal(responsible_mean(m, near_moved), torch.tensor([[4.0, 4.0]]))
+    assert torch.equal(responsible_mean(m, between), torch.tensor([[0.0, 0.0]]))  # the weight
+    assert torch.equal(mixture_mode(m), torch.tensor([[0.0, 0.0]]))

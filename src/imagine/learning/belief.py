@@ -5,10 +5,14 @@ what does not matter to the task (which fragment, the lighting, the jitter) abou
 moves between neighbouring macrostates, while M, trained on the images' means, predicts the
 next state's mean. An augmented agent can average the two, a filter of constant gain w:
 
-    b_0 = mu_0,    b_t = w m(b_{t-1}, a_{t-1}) + (1 - w) mu_t,
+    b_0 = mu_0,    b_t = w m_t + (1 - w) mu_t,
 
-with m M's most likely next state (the mean of its heaviest component; member 0 of an
-ensemble). w = 0 is the paper's C. The baseline has no M and always acts on mu_t.
+with m_t the mean of the component of M's mixture for (b_{t-1}, a_{t-1}) that best explains
+mu_t (the highest posterior responsibility, :func:`~imagine.models.world_model.
+responsible_mean`; member 0 of an ensemble). Where M knows one outcome that is its most likely
+next state; where it knows several (a human whose hand may move), the one the image shows,
+so the filter does not pull the belief towards an outcome that did not happen. w = 0 is the
+paper's C. The baseline has no M and always acts on mu_t.
 :class:`BeliefTracker` keeps b and the last action per row of a batch of episodes.
 """
 
@@ -51,7 +55,7 @@ class BeliefTracker:
             mdn = self.model.members[0]
             was_training = mdn.training
             mdn.eval()  # M's most likely next state, without dropout
-            m = mdn.most_likely(self.belief[past], self.action[past])
+            m = mdn.explain(self.belief[past], self.action[past], mu[going])
             mdn.train(was_training)
             belief[going] = fuse(m, mu[going], self.weight)
         self.belief[rows] = belief

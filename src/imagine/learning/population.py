@@ -245,7 +245,8 @@ class Population:
 
     def _next_belief(self, live: list[int], action: torch.Tensor, next_mu: torch.Tensor):
         """The beliefs of the ``live`` agents after their step (``next_mu``: V's means of their
-        new observations): b' = w m(b, a) + (1 - w) mu' for an agent that filters
+        new observations): b' = w m + (1 - w) mu' (m: M's component for (b, a) that best
+        explains mu', :mod:`imagine.learning.belief`) for an agent that filters
         (``filter_weight`` w > 0) and imagines already (from I_start), else mu'
         (:mod:`imagine.learning.belief`)."""
         weights = [self.configs[i].filter_weight for i in live]
@@ -255,7 +256,10 @@ class Population:
         ]  # fmt: skip
         if not filtering:
             return next_mu
-        m = self.model.mode(self.belief.unsqueeze(1), action.view(-1, 1))[:, 0]
+        observed = self.mu.clone()
+        observed[torch.as_tensor(live, device=self.device)] = next_mu
+        m = self.model.explain(self.belief.unsqueeze(1), action.view(-1, 1), observed.unsqueeze(1))
+        m = m[:, 0]
         belief = next_mu.clone()
         for k in filtering:
             belief[k] = fuse(m[live[k]], next_mu[k], weights[k])

@@ -156,6 +156,14 @@ class MDN(nn.Module):
         return sample_mixture(self(z, action), generator, temperature=temperature)
 
     @torch.no_grad()
+    def explain(
+        self, z: torch.Tensor, action: torch.Tensor, observed: torch.Tensor
+    ) -> torch.Tensor:
+        """The mean of the component that best explains the ``observed`` next latent
+        (:func:`responsible_mean`)."""
+        return responsible_mean(self(z, action), observed)
+
+    @torch.no_grad()
     def most_likely(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The mean of the heaviest component: the most likely next state."""
         m = self(z, action)
@@ -249,6 +257,17 @@ class WorldModel(nn.Module):
 def mixture_mode(m: Mixture) -> torch.Tensor:
     """The mean of each mixture's heaviest component (..., D): its most likely point."""
     k = m.log_pi.argmax(-1)[..., None, None].expand(*m.mu.shape[:-2], 1, m.mu.shape[-1])
+    return m.mu.gather(-2, k).squeeze(-2)
+
+
+def responsible_mean(m: Mixture, observed: torch.Tensor) -> torch.Tensor:
+    """The mean of each mixture's component that best explains ``observed`` (..., D): the one
+    of highest posterior responsibility, argmax_k log pi_k + log N(observed; mu_k, sigma_k^2)
+    (the terms of equation 6). Where one outcome dominates it is the mode; where M knows
+    several (a hand that may move), the one the observation shows."""
+    x = (observed.unsqueeze(-2) - m.mu) / m.sigma
+    log_joint = m.log_pi - 0.5 * (x.square() + LOG_2PI).sum(-1) - m.sigma.log().sum(-1)
+    k = log_joint.argmax(-1)[..., None, None].expand(*m.mu.shape[:-2], 1, m.mu.shape[-1])
     return m.mu.gather(-2, k).squeeze(-2)
 
 
@@ -476,6 +495,19 @@ class PopulationWorldModel(nn.Module):
                 out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
                                         temperature=temperature, **_DRAWS[draw])  # fmt: skip
         return out
+
+    @torch.no_grad()
+    def explain(self, z: torch.Tensor, action: torch.Tensor, observed: torch.Tensor):
+        """For latents, actions and observed next latents (P, N, ...): the mean of the
+        component of each row's mixture that best explains its observation
+        (:func:`responsible_mean`), of member 0 when K > 1; (P, N, D)."""
+        if self.ensemble > 1:
+            P, N, D = z.shape
+            zs = self._each_member(z)
+            m = self._mixture(self._heads(zs, self._each_member(action)), zs)
+            means = responsible_mean(m, self._each_member(observed)).view(P, self.ensemble, N, D)
+            return means[:, 0]
+        return responsible_mean(self._mixture(self._heads(z, action), z), observed)
 
     def _mode_one(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return mixture_mode(self._mixture(self._heads(z, action), z))
