@@ -286,11 +286,17 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         {**ROUND_6, **RESIDUAL_20, "value_expansion": 2, "model_ensemble": 5},
     ),
     # round 11: C acts on V's observation filtered through M's prediction of it
-    "augmented, as s44, C acts on a belief filtered through M's mode (w = 0.5; run at 7bc2e51)": (
+    "augmented, as s44, C acts on a belief through M's mode, in training too (run at 7bc2e51)": (
         "augmented",
-        {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "belief_weight": 0.5},
+        {
+            **ROUND_6,
+            **RESIDUAL_20,
+            "belief": "filtered",
+            "belief_weight": 0.5,
+            "belief_in_training": True,
+        },
     ),
-    "augmented, as s44, C acts on the belief, M's component that explains mu_t (the fast preset)": (
+    "augmented, as s44, the trained C acts on the belief (w = 0.5; the fast preset)": (
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "belief_weight": 0.5},
     ),

@@ -41,9 +41,15 @@ def test_the_belief_averages_ms_prediction_and_vs_observation():
     assert torch.equal(BeliefTracker(model, 0.0, 3, 4).observe(mu1, rows), mu1)  # w = 0: mu
 
 
-def test_a_population_acts_on_the_filtered_belief():
+def test_a_population_acts_on_the_filtered_belief_while_training_only_if_asked():
+    config = agent_preset("smoke", encoder="oracle", imagination_start=0, belief="filtered")
+    population = Population([config], OracleEncoder())
+    for _ in range(20):
+        population.step()
+        assert torch.equal(population.belief, population.mu)  # trains acting on mu
     config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
-                          belief="filtered", belief_weight=0.4)  # fmt: skip
+                          belief="filtered", belief_weight=0.4,
+                          belief_in_training=True)  # fmt: skip
     population = Population([config], OracleEncoder())
     checked = 0
     for _ in range(300):  # early episodes are short: most end at their first step

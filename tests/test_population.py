@@ -32,7 +32,7 @@ def assert_same_agent(a, b):
 @pytest.mark.parametrize("overrides", [
     # smoke: the paper's 50% dropout in M, so dropout masks are per agent too; C acts on
     # beliefs filtered through M (the fast preset's), so M's modes of each agent alone too
-    {"belief": "filtered"},
+    {"belief": "filtered", "belief_in_training": True},
     # slow (make test-all): the same equality with the options' extra streams
     pytest.param({"target_update_period": 7, "double_dqn": True, "controller_input": "sample"},
                  marks=pytest.mark.slow),

@@ -247,9 +247,10 @@ class Population:
         """The beliefs of the ``live`` agents after their step (``next_mu``: V's means of their
         new observations): b' = w m + (1 - w) mu' (m: M's component for (b, a) that best
         explains mu', :mod:`imagine.learning.belief`) for an agent that filters
-        (``filter_weight`` w > 0) and imagines already (from I_start), else mu'
-        (:mod:`imagine.learning.belief`)."""
-        weights = [self.configs[i].filter_weight for i in live]
+        (``filter_weight`` w > 0) while it trains (``belief_in_training``) and imagines
+        already (from I_start), else mu' (:mod:`imagine.learning.belief`)."""
+        weights = [self.configs[i].filter_weight * self.configs[i].belief_in_training
+                   for i in live]  # fmt: skip
         filtering = [
             k for k, i in enumerate(live)
             if weights[k] > 0 and self.episode[i] >= self.configs[i].imagination_start
