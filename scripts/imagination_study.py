@@ -300,6 +300,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "belief_weight": 0.5},
     ),
+    "augmented, as s58, C's targets expanded 2 steps through M (s50 acting on the belief)": (
+        "augmented",
+        {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "value_expansion": 2},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
