@@ -490,12 +490,12 @@ def evaluate_agent(
     transitions its gate accepts and rejects are."""
     from imagine.checkpoint import write_json
     from imagine.envs.gesture_puzzle.evaluation import (
-        greedy_success,
+        agent_success,
         hand_calibration,
         imagined_accuracy,
         model_accuracy,
     )
-    from imagine.learning.agent import belief_tracker, load_agent
+    from imagine.learning.agent import load_agent
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
@@ -503,12 +503,7 @@ def evaluate_agent(
         evaluate_any(run, agent, n, seed)
         return
     p = agent.config.hand_switch_prob
-    result = greedy_success(agent.controller, agent.encoder, agent.config.task, n, seed,
-                            hand_switch_prob=p, belief=belief_tracker(agent, n))  # fmt: skip
-    if belief_tracker(agent, n) is not None:  # the same agent acting on V's means
-        result["success_observation"] = greedy_success(
-            agent.controller, agent.encoder, agent.config.task, n, seed, hand_switch_prob=p
-        )["success"]
+    result = agent_success(agent, n, seed)
     accuracy = imagined = imagined_other = calibration = calibration_all = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:

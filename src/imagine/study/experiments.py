@@ -173,11 +173,10 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
     """Train ``jobs`` to ``budget`` episodes (resuming) and evaluate each, unless its
     evaluation is there already; each job's error or None."""
     from imagine.envs.gesture_puzzle.evaluation import (
-        greedy_success,
+        agent_success,
         hand_calibration,
         model_accuracy,
     )
-    from imagine.learning.agent import belief_tracker
     from imagine.learning.training import train_population
 
     todo = [job for job in jobs if not job.evaluation_path(budget).is_file()]
@@ -191,15 +190,7 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
             errors[job.name] = f"{job.name}: {result.failures[i]}"
             continue
         p = agent.config.hand_switch_prob
-        n = agent.config.eval_episodes
-        evaluation = greedy_success(
-            agent.controller, agent.encoder, job.task, n, EVAL_SEED, hand_switch_prob=p,
-            belief=belief_tracker(agent, n),
-        )  # fmt: skip
-        if belief_tracker(agent, n) is not None:  # the same agent acting on V's means
-            evaluation["success_observation"] = greedy_success(
-                agent.controller, agent.encoder, job.task, n, EVAL_SEED, hand_switch_prob=p
-            )["success"]
+        evaluation = agent_success(agent, agent.config.eval_episodes, EVAL_SEED)
         accuracy = None
         if agent.config.trains_model:
             accuracy = model_accuracy(agent.model, agent.encoder, job.task, p,

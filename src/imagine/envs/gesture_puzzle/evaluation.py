@@ -51,6 +51,24 @@ def greedy_success(
     )  # fmt: skip
 
 
+def agent_success(agent, episodes: int, seed: int) -> dict[str, float]:
+    """A trained agent's greedy test episodes (:func:`greedy_success`, its task and human), on
+    its belief where it acts on one (:func:`imagine.learning.agent.belief_tracker`); then also
+    ``success_observation``: the same agent on V's means alone."""
+    from imagine.learning.agent import belief_tracker
+
+    c, belief = agent.config, belief_tracker(agent, episodes)
+
+    def run(belief):
+        return greedy_success(agent.controller, agent.encoder, c.task, episodes, seed,
+                              hand_switch_prob=c.hand_switch_prob, belief=belief)  # fmt: skip
+
+    result = run(belief)
+    if belief is not None:
+        result["success_observation"] = run(None)["success"]
+    return result
+
+
 @torch.no_grad()
 def policy_success(
     policy: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
