@@ -58,3 +58,25 @@ def test_sb3_learns_on_gesture_puzzle_and_is_judged_on_our_test_episodes(tmp_pat
     lines = []
     peer.run_peers(("sb3",), tmp_path, ("hard",), (0,), (5, 10), 30, 7, log=lines.append)
     assert lines == []  # nothing left to run
+
+
+def test_agents_acting_on_a_belief_show_their_success_on_v_means_too():
+    ours = [evaluation(m, s, 2000, 0.5 + 0.1 * s) for m in ("baseline", "augmented")
+            for s in range(3)]  # fmt: skip
+    assert "V's means" not in markdown_table("hard", summarize(ours), 0.03)
+    for e in ours:
+        if e["method"] == "augmented":
+            e["success_observation"] = e["success"] - 0.1
+    rows = summarize(ours)
+    assert [r["observation_mean"] for r in rows if r["method"] == "augmented"] == [
+        pytest.approx(50.0)
+    ]
+    header, rule, line, random = markdown_table("hard", rows, 0.03).splitlines()
+    assert "| Augmented on V's means |" in header
+    assert header.count("|") == rule.count("|") == line.count("|") == random.count("|")
+    assert line.startswith("| 2000 | 60.00 (10.00) | 60.00 (10.00) |")
+    assert line.endswith("| 50.00 (10.00) |")
+    peers = [evaluation("sb3-dqn", s, 2000, 0.1 * s) for s in range(3)]
+    header, _, line, _ = markdown_table("hard", summarize(ours + peers), 0.03).splitlines()
+    assert header.endswith("| Augmented on V's means | SB3 DQN | IQM SB3 DQN [95% CI] |")
+    assert line.endswith("| 50.00 (10.00) | 10.00 (10.00) | 10.00 [0.00, 20.00] |")

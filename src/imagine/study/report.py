@@ -54,8 +54,11 @@ def iqm_interval(values: np.ndarray, seed: int = 0) -> tuple[float, float, float
 def summarize(evaluations: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (task, budget, method): n, mean, std (ddof 1), IQM and its interval, in %."""
     groups: dict[tuple[str, int, str], list[float]] = defaultdict(list)
+    on_mu: dict[tuple[str, int, str], list[float]] = defaultdict(list)
     for e in evaluations:
-        groups[(e["task"], int(e["budget"]), e["method"])].append(100 * e["success"])
+        key = (e["task"], int(e["budget"]), e["method"])
+        groups[key].append(100 * e["success"])
+        on_mu[key].append(100 * e.get("success_observation", math.nan))
     rows = []
     order = {"original": 0, "hard": 1}
     method_order = {m: i for i, m in enumerate(METHODS)}
@@ -63,7 +66,7 @@ def summarize(evaluations: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups.items(), key=lambda kv: (order.get(kv[0][0], 2), kv[0][0], kv[0][1],
                                         method_order.get(kv[0][2], 2)),
     ):  # fmt: skip
-        x = np.array(values)
+        x, mu = np.array(values), np.array(on_mu[(task, budget, method)])
         iqm, low, high = iqm_interval(x)
         paper = PAPER_TABLES.get(task, {}).get(budget) if method in METHODS else None
         offset = 0 if method == "baseline" else 2
@@ -73,6 +76,9 @@ def summarize(evaluations: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "iqm": iqm, "iqm_low": low, "iqm_high": high,
             "paper_mean": paper[offset] if paper else math.nan,
             "paper_std": paper[offset + 1] if paper else math.nan,
+            # an agent acting on a belief (belief: filtered) is also tested on V's means alone
+            "observation_mean": float(mu.mean()),
+            "observation_std": float(mu.std(ddof=1)) if len(mu) > 1 else 0.0,
         })  # fmt: skip
     return rows
 
@@ -87,11 +93,16 @@ def markdown_table(task: str, rows: list[dict[str, Any]], random_success: float)
     cell = {(r["budget"], r["method"]): r for r in rows if r["task"] == task}
     budgets = sorted({b for b, _ in cell})
     peer = any(m == PEER for _, m in cell)  # SB3's DQN, when the study has it
+    # augmented agents acting on a belief, each also tested on V's means alone
+    on_mu = any(m == "augmented" and not math.isnan(r["observation_mean"])
+                for (_, m), r in cell.items())  # fmt: skip
     lines = [
         "| Episodes | Base DQN | Augmented | % increase | IQM base [95% CI] | "
         "IQM augmented [95% CI] | paper base | paper augmented | paper % increase |"
+        + (" Augmented on V's means |" if on_mu else "")
         + (" SB3 DQN | IQM SB3 DQN [95% CI] |" if peer else ""),
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+        + (" --- |" if on_mu else "")
         + (" --- | --- |" if peer else ""),
     ]
     for budget in budgets:
@@ -105,15 +116,21 @@ def markdown_table(task: str, rows: list[dict[str, Any]], random_success: float)
         if paper:
             theirs = [f"{paper[0]:.2f} ({paper[1]:.2f})", f"{paper[2]:.2f} ({paper[3]:.2f})",
                       f"{increase(paper[0], paper[2]):.2f}"]  # fmt: skip
+        more = []
+        if on_mu:
+            more.append(f"{aug['observation_mean']:.2f} ({aug['observation_std']:.2f})"
+                        if aug and not math.isnan(aug["observation_mean"]) else "-")  # fmt: skip
         if peer:
             r = cell.get((budget, PEER))
-            theirs += ([f"{r['mean']:.2f} ({r['std']:.2f})",
-                        f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]"]
-                       if r else ["-", "-"])  # fmt: skip
-        lines.append(f"| {budget} | {' | '.join([*ours, gain, *iqms, *theirs])} |")
+            more += ([f"{r['mean']:.2f} ({r['std']:.2f})",
+                      f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]"]
+                     if r else ["-", "-"])  # fmt: skip
+        lines.append(f"| {budget} | {' | '.join([*ours, gain, *iqms, *theirs, *more])} |")
     lines.append(
         f"| random agent | {100 * random_success:.2f} | | | | | "
-        f"{PAPER_RANDOM.get(task, math.nan):.2f} | | |" + (" | |" if peer else "")
+        f"{PAPER_RANDOM.get(task, math.nan):.2f} | | |"
+        + (" |" if on_mu else "")
+        + (" | |" if peer else "")
     )
     return "\n".join(lines) + "\n"
 
