@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from imagine.config import agent_preset
+from imagine.config import AGENT_PRESETS, agent_preset
 from imagine.errors import ConfigError
 from imagine.learning.training import train
 from imagine.learning.value_expansion import expanded_target, member_values, steve_target
@@ -59,6 +59,17 @@ def test_value_expansion_needs_m_and_a_short_horizon():
         agent_preset("fast", method="baseline", value_expansion=1)
     with pytest.raises(ConfigError, match="value_expansion must be 0 to 3"):
         agent_preset("fast", value_expansion=5)
+
+
+def test_a_presets_value_expansion_is_the_augmented_agents(monkeypatch):
+    """A preset with H > 0 still has a baseline (which has no M): it goes without H, while H
+    given explicitly to a baseline stays an error."""
+    monkeypatch.setitem(AGENT_PRESETS, "smoke", {**AGENT_PRESETS["smoke"], "value_expansion": 2})
+    assert agent_preset("smoke").value_expansion == 2
+    assert agent_preset("smoke", method="baseline").value_expansion == 0
+    assert agent_preset("smoke", method="augmented", value_expansion=1).value_expansion == 1
+    with pytest.raises(ConfigError, match="value_expansion needs M"):
+        agent_preset("smoke", method="baseline", value_expansion=2)
 
 
 class ShiftEnsemble(ShiftModel):

@@ -643,7 +643,14 @@ AGENT_PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+AUGMENTED_ONLY = ("value_expansion",)
+"""A preset's settings that need M: a baseline of the preset goes without them (given
+explicitly to a baseline, they are an error)."""
+
+
 def agent_preset(preset: str = "fast", **overrides: Any) -> AgentConfig:
     """The Algorithm 1 config of a preset, with ``overrides`` applied (validated)."""
     values = {**AGENT_PRESETS[check_preset(preset)], **overrides}
+    if values.get("method", AgentConfig.method) != "augmented":
+        values = {k: v for k, v in values.items() if k not in AUGMENTED_ONLY or k in overrides}
     return from_dict(AgentConfig, values, "agent")
