@@ -36,7 +36,7 @@ SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
-               "reward_dropout": None, "belief": "observation"}  # fmt: skip
+               "reward_dropout": None, "belief": "observation", "value_expansion": 0}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
 squared error for r and a residual M with 20% dropout): every setting starts from it, so a
 setting means what it meant when it ran."""
