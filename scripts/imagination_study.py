@@ -45,6 +45,8 @@ ROUND_6 = {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6}
 """s39: the `fast` preset's imagination after round 6."""
 RESIDUAL_20 = {"model_residual": True, "dropout": 0.2}
 """Round 7's M: the change of state, 20% dropout."""
+TODAY = {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "value_expansion": 2}
+"""s59, the `fast` preset's augmented agent since round 11."""
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # name: (method, overrides of the fast preset)
     "baseline": ("baseline", {}),
@@ -303,6 +305,20 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "augmented, as s58, C's targets expanded 2 steps through M (s50 acting on the belief)": (
         "augmented",
         {**ROUND_6, **RESIDUAL_20, "belief": "filtered", "value_expansion": 2},
+    ),
+    # issue 15 on round 11's fast agent (s59): M handicapped, with and without trust
+    "augmented, as s59 (the fast preset), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**TODAY, **HANDICAP},
+    ),
+    "augmented, as s60, K = 5, mask gate, adaptive N_I, STEVE's weighting of the expansion": (
+        "augmented",
+        {**TODAY, **HANDICAP, **TRUST, "value_expansion_weighting": "steve"},
+    ),
+    "augmented, as s61, a random mask of the gate's rate": (
+        "augmented",
+        {**TODAY, **HANDICAP, **TRUST, "value_expansion_weighting": "steve"}
+        | {"imagination_gate": "random"},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
