@@ -1,5 +1,7 @@
 """C's belief (issue 14, round 11): V's observation filtered through M's prediction of it."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -7,11 +9,12 @@ import torch
 from imagine.config import agent_preset
 from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 from imagine.errors import ConfigError
-from imagine.learning.agent import belief_tracker, load_agent
+from imagine.learning.agent import belief_tracker, greedy_actions, load_agent
 from imagine.learning.belief import BeliefTracker, fuse
 from imagine.learning.population import Population
 from imagine.learning.test_episodes import GreedyPolicy
 from imagine.learning.training import train
+from imagine.models.controller import Controller
 from imagine.models.world_model import Mixture, WorldModel, mixture_mode, responsible_mean
 
 
@@ -27,10 +30,10 @@ def test_the_belief_averages_ms_prediction_and_vs_observation():
     tracker.acted(a, rows)
     two = torch.tensor([0, 2])  # row 1 has ended: only 0 and 2 observe
     b1 = tracker.observe(mu1[two], two)
+    assert mdn.training  # the tracker leaves the MDN's mode as it found it
     mdn.eval()
     expected = 0.5 * mdn.explain(mu0[two], a[two], mu1[two]) + 0.5 * mu1[two]
     assert torch.allclose(b1, expected, atol=1e-6)
-    assert model.training  # the tracker leaves the module's mode as it found it
     tracker.acted(torch.tensor([1, 2]), two)
     tracker.restart(torch.tensor([0]))  # row 0 starts a new episode
     b2 = tracker.observe(mu2[two], two)
@@ -121,3 +124,40 @@ def test_the_component_that_explains_the_observation_is_ms_outcome_the_image_sho
     assert torch.equal(responsible_mean(m, near_moved), torch.tensor([[4.0, 4.0]]))
     assert torch.equal(responsible_mean(m, between), torch.tensor([[0.0, 0.0]]))  # the weight
     assert torch.equal(mixture_mode(m), torch.tensor([[0.0, 0.0]]))
+
+
+class DeviceEncoder(OracleEncoder):
+    """The oracle's means handed over on ``device``, as V on a GPU hands them."""
+
+    def __init__(self, device: str) -> None:
+        super().__init__()
+        self.device = device
+
+    def encode(self, images, states):
+        mu, sigma = super().encode(images, states)
+        return mu.to(self.device), sigma.to(self.device)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+@pytest.mark.parametrize("v_device, m_device", [("cuda", "cpu"), ("cpu", "cuda"), ("cuda", "cuda")])
+def test_the_belief_lives_on_ms_device_whatever_vs(v_device, m_device):
+    """V on a GPU and C and M on the CPU (a study's snapshot agents), or the other way round:
+    the same actions and beliefs as all on the CPU."""
+    torch.manual_seed(0)
+    model = WorldModel(OracleEncoder().latent_dim, n_actions=6, dropout=0.0)
+    controller = Controller(OracleEncoder().latent_dim, 6)
+    rng = np.random.default_rng(0)
+    states = [rng.integers(0, [4, 4, 4, 3], size=(5, 4)) for _ in range(3)]
+    images = np.zeros((5, 64, 64, 3), dtype=np.uint8)
+
+    def episode(encoder, model, controller):
+        tracker = BeliefTracker(model, 0.5, n=5, latent_dim=model.members[0].latent_dim)
+        actions = [greedy_actions(controller, encoder, images, s, tracker, np.arange(5))
+                   for s in states]  # fmt: skip
+        return np.stack(actions), tracker.belief.cpu()
+
+    expected = episode(OracleEncoder(), model, controller)
+    got = episode(DeviceEncoder(v_device), copy.deepcopy(model).to(m_device),
+                  copy.deepcopy(controller).to(m_device))  # fmt: skip
+    assert np.array_equal(got[0], expected[0])
+    assert torch.allclose(got[1], expected[1], atol=1e-5)

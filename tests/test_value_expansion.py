@@ -205,3 +205,24 @@ def test_steve_needs_an_ensemble_and_a_horizon():
         agent_preset("fast", value_expansion=2, value_expansion_weighting="steve")
     with pytest.raises(ConfigError, match="value_expansion >= 1"):
         agent_preset("fast", model_ensemble=3, value_expansion=0, value_expansion_weighting="steve")
+
+
+def test_a_studys_value_expansion_and_belief_are_its_augmented_agents():
+    """`imagine reproduce --set value_expansion=2` expands the augmented agents' targets; the
+    study's baselines (no M) go without it, as they go without the preset's belief."""
+    from imagine.study.experiments import Job, job_config
+    from imagine.study.reproduce import StudyConfig
+
+    overrides = {"value_expansion": 2, "belief": "filtered"}
+    StudyConfig(preset="smoke", overrides=overrides)  # valid for both methods
+    base, aug = (
+        job_config(Job("unused", "hard", m, 0, (300,), preset="smoke", encoder="oracle",
+                       overrides=tuple(overrides.items())), 300)
+        for m in ("baseline", "augmented")
+    )  # fmt: skip
+    assert (base.value_expansion, base.belief) == (0, "observation")
+    assert (aug.value_expansion, aug.belief) == (2, "filtered")
+    fast = agent_preset("fast", method="baseline")  # the preset's own
+    assert (fast.value_expansion, fast.belief) == (0, "observation")
+    with pytest.raises(ConfigError, match="value_expansion must be 0 to 3"):
+        StudyConfig(preset="smoke", overrides={"value_expansion": 4})

@@ -628,7 +628,7 @@ def compare_command(
     Writes OUT/comparison.md (mean, std, IQM with 95% bootstrap CI), OUT/comparison.json and
     OUT/comparison.png (IQM against steps). SB3 (RL Zoo settings where tuned) needs the
     optional extra: pip install 'imagine[sb3]'; without it its row is skipped."""
-    from imagine.config import agent_preset, parse_assignments, parse_seeds
+    from imagine.config import agent_preset, for_method, parse_assignments, parse_seeds
     from imagine.study.compare import METHODS, report, sb3_available, train_ours, train_sb3
 
     try:
@@ -648,7 +648,8 @@ def compare_command(
     values = with_encoder_of_env(values)
     out.mkdir(parents=True, exist_ok=True)
     for method in [m for m in ("baseline", "augmented") if m in wanted]:
-        config = agent_preset(preset, **values, method=method, steps=budgets[0])
+        config = agent_preset(preset, **for_method(values, method), method=method,
+                              steps=budgets[0])  # fmt: skip
         train_ours(config, out, chosen, budgets, episodes, log=console.print)
     if "sb3-dqn" in wanted and sb3_available():
         train_sb3(env, list(wrapper or []), out, chosen, budgets, episodes, log=console.print)

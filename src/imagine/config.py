@@ -647,9 +647,19 @@ AGENT_PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
-AUGMENTED_ONLY = ("value_expansion",)
-"""A preset's settings that need M: a baseline of the preset goes without them (given
-explicitly to a baseline, they are an error)."""
+AUGMENTED_ONLY = ("value_expansion", "belief", "belief_weight", "belief_in_training")
+"""Settings of the augmented agent alone (they use M): a preset's baseline goes without them,
+and so does a study's (:func:`for_method`). Given to one baseline explicitly, value_expansion
+is an error and the belief's fields do nothing."""
+
+
+def for_method(overrides: dict[str, Any], method: str) -> dict[str, Any]:
+    """A study's overrides for its agents of ``method``: a baseline's without the augmented
+    agent's settings (:data:`AUGMENTED_ONLY`), so that ``--set value_expansion=2`` is the
+    augmented agents' H."""
+    if method == "augmented":
+        return dict(overrides)
+    return {k: v for k, v in overrides.items() if k not in AUGMENTED_ONLY}
 
 
 def agent_preset(preset: str = "fast", **overrides: Any) -> AgentConfig:

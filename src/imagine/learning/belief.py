@@ -33,37 +33,43 @@ class BeliefTracker:
 
     :meth:`observe` takes V's means of some rows' new observations and returns the states C
     should act on; :meth:`acted` records the actions taken; :meth:`restart` marks rows whose
-    next observation starts an episode. With ``weight`` 0 or no ``model`` it returns mu."""
+    next observation starts an episode. With ``weight`` 0 or no ``model`` it returns mu.
+    The beliefs live on M's device (V's means may come from another: V on a GPU, M on the CPU)."""
 
     def __init__(self, model: WorldModel | None, weight: float, n: int, latent_dim: int):
         self.model = model if weight > 0 else None
         self.weight = weight
-        self.belief = torch.zeros(n, latent_dim)
-        self.action = torch.zeros(n, dtype=torch.long)
-        self.started = torch.zeros(n, dtype=torch.bool)
+        device = next(model.parameters()).device if model is not None else None
+        self.belief = torch.zeros(n, latent_dim, device=device)
+        self.action = torch.zeros(n, dtype=torch.long, device=device)
+        self.started = torch.zeros(n, dtype=torch.bool, device=device)
 
     @torch.no_grad()
     def observe(self, mu: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-        """The beliefs (len(rows), D) of ``rows`` after their new observations' means ``mu``."""
+        """The beliefs (len(rows), D) of ``rows`` after their new observations' means ``mu``,
+        on M's device."""
         if self.model is None:
             return mu
-        rows = torch.as_tensor(rows, dtype=torch.long)
-        belief = mu.clone()
+        device = self.belief.device
+        rows = torch.as_tensor(rows, dtype=torch.long, device=device)
+        belief = mu.to(device).clone()
         going = self.started[rows]
         if going.any():
             past = rows[going]
             mdn = self.model.members[0]
             was_training = mdn.training
             mdn.eval()  # M's most likely next state, without dropout
-            m = mdn.explain(self.belief[past], self.action[past], mu[going])
+            m = mdn.explain(self.belief[past], self.action[past], belief[going])
             mdn.train(was_training)
-            belief[going] = fuse(m, mu[going], self.weight)
+            belief[going] = fuse(m, belief[going], self.weight)
         self.belief[rows] = belief
         self.started[rows] = True
         return belief
 
     def acted(self, actions: torch.Tensor, rows: torch.Tensor) -> None:
-        self.action[torch.as_tensor(rows, dtype=torch.long)] = torch.as_tensor(actions)
+        device = self.action.device
+        rows = torch.as_tensor(rows, dtype=torch.long, device=device)
+        self.action[rows] = torch.as_tensor(actions, device=device)
 
     def restart(self, rows: torch.Tensor) -> None:
-        self.started[torch.as_tensor(rows, dtype=torch.long)] = False
+        self.started[torch.as_tensor(rows, dtype=torch.long, device=self.started.device)] = False

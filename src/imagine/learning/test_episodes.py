@@ -101,8 +101,8 @@ def greedy_policy(controller, encoder, belief=None) -> GreedyPolicy:
 
 
 def agent_policy(agent, episodes: int, copies: int = 64) -> GreedyPolicy:
-    """An agent's greedy policy for :func:`run_episodes` (``episodes`` on ``copies``): on its
-    filtered belief where it acts on one."""
+    """An agent's greedy policy for :func:`run_episodes` (``episodes`` on ``copies``, the
+    same ``copies`` as run_episodes'): on its filtered belief where it acts on one."""
     from imagine.learning.agent import belief_tracker
 
     belief = belief_tracker(agent, min(copies, episodes))

@@ -161,11 +161,11 @@ def run_job(job: Job) -> list[dict[str, Any]]:
 
 def job_config(job: Job, budget: int):
     """The agent config of ``job`` trained to ``budget`` episodes."""
-    from imagine.config import agent_preset
+    from imagine.config import agent_preset, for_method
 
     return agent_preset(
         job.preset, task=job.task, method=job.method, seed=job.seed, episodes=budget,
-        encoder=job.encoder, vae_run=job.vae_run, **dict(job.overrides),
+        encoder=job.encoder, vae_run=job.vae_run, **for_method(dict(job.overrides), job.method),
     )  # fmt: skip
 
 

@@ -26,6 +26,7 @@ from imagine.config import (
     agent_preset,
     check_imagines,
     check_preset,
+    for_method,
 )
 from imagine.errors import ConfigError
 from imagine.study.experiments import (
@@ -130,6 +131,8 @@ class StudyConfig:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
         # every budget's agent config must be valid before anything runs
         for budget in self.budgets:
+            agent_preset(self.preset, episodes=budget, encoder="oracle", method="baseline",
+                         **for_method(self.overrides, "baseline"))  # fmt: skip
             agent = agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
         check_imagines(agent)  # the runs are evaluated early, but must imagine by the last budget
 
