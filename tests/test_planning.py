@@ -70,3 +70,36 @@ def test_plan_and_generalize_commands(tmp_path):
     result = json.loads((run / "generalization.json").read_text())
     assert result["trials"] == 7 and result["all_terminal_transitions"] == 138 * 6
     assert 0.0 <= result["all_terminal_accuracy"] <= 1.0
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a GPU")
+def test_plans_and_predictions_take_vs_means_from_another_device():
+    """A study's snapshot agent on a GPU keeps V there and M and C on the CPU: plans and M's
+    predictions from terminal states move V's means to M's device (the same numbers)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.models.controller import Controller
+    from imagine.models.world_model import WorldModel
+    from imagine.study.generalization import predict_next
+    from imagine.study.planning import imagine_plan
+
+    class OnGpu(OracleEncoder):
+        def encode(self, images, states):
+            mu, sigma = super().encode(images, states)
+            return mu.cuda(), sigma.cuda()
+
+    torch.manual_seed(0)
+    agent = SimpleNamespace(model=WorldModel(8, dropout=0.0), controller=Controller(8))
+    states, actions = start_states("hard")[:4], np.arange(4)
+    images = np.zeros((4, 64, 64, 3), dtype=np.uint8)
+    mu, _ = OracleEncoder().encode(images, states)
+    plan, latents = imagine_plan(agent, mu[0])
+    on_gpu, gpu_latents = imagine_plan(agent, mu[0].cuda())
+    assert on_gpu == plan and torch.allclose(gpu_latents.cpu(), latents)
+    gpu = SimpleNamespace(**vars(agent), encoder=OnGpu())
+    cpu = SimpleNamespace(**vars(agent), encoder=OracleEncoder())
+    assert torch.allclose(predict_next(gpu, images, states, actions)[0],
+                          predict_next(cpu, images, states, actions)[0])  # fmt: skip

@@ -24,8 +24,9 @@ def predict_next(agent, images: np.ndarray, states: np.ndarray, actions: np.ndar
     """M's most likely next latent from each observation under each action, and the
     macrostate the classifier reads from it."""
     mu, _ = agent.encoder.encode(images, states)
+    device = next(agent.model.parameters()).device  # V may sit on a GPU, M on the CPU
     agent.model.eval()
-    next_z = agent.model.mdn.most_likely(mu, torch.as_tensor(actions))
+    next_z = agent.model.mdn.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
     agent.model.train()
     return next_z, agent.encoder.classify(next_z).numpy()
 
@@ -78,7 +79,7 @@ def generalization_png(agent, out: Path, seed: int = 0) -> Path | None:
     image = composer.sample(rng, state)
     next_z, read = predict_next(agent, image, state, action)
     with torch.no_grad():
-        decoded = vae.decode(next_z).clamp(0, 1)[0]
+        decoded = vae.decode(next_z.to(next(vae.parameters()).device)).clamp(0, 1)[0].cpu()
     panels = [
         (as_scene(image[0]), f"terminal state (observed)\n{describe(state[0])}"),
         (as_scene(decoded), f"M's prediction, action {int(action[0])}\nreads {describe(read[0])}"),

@@ -69,6 +69,7 @@ def imagine_plan(agent, mu: torch.Tensor, depth: int = 10) -> tuple[list[int], t
     model, controller = agent.model, agent.controller
     model.eval()
     controller.eval()
+    mu = mu.to(next(model.parameters()).device)  # V may sit on a GPU, M and C on the CPU
     z, actions, latents = mu[None], [], [mu]
     for _ in range(depth):
         action = controller(z).argmax(-1)
@@ -142,7 +143,8 @@ def rollout_png(agent, out: Path, length: int = 5, seed: int = 0, tries: int = 5
             break
     image, actions, latents, result = best
     with torch.no_grad():
-        decoded = vae.decode(latents[1:]).clamp(0, 1).numpy()
+        decoded = vae.decode(latents[1:].to(next(vae.parameters()).device)).clamp(0, 1)
+    decoded = decoded.cpu().numpy()
     panels = [as_scene(image)] + [as_scene(x) for x in decoded]
     fig = Figure(figsize=(2.2 * len(panels), 1.6), layout="constrained")
     states = [np.asarray(result.start)]
