@@ -4,6 +4,7 @@ so tests neither oversubscribe a 2-core machine nor slow each other down."""
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("IMAGINE_AUTO_DEVICE", "cpu")  # CPU arithmetic on a GPU machine too
 
 import torch
 

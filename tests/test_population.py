@@ -178,3 +178,17 @@ def test_a_run_resumes_only_on_the_device_type_it_was_trained_on(tmp_path):
     longer = dataclasses.replace(config, episodes=30)
     with pytest.raises(CheckpointError, match="trained on cuda; resume it with --device cuda"):
         train_population([longer], [tmp_path / "run"], threads=1)
+
+
+def test_auto_goes_where_imagine_auto_device_says(monkeypatch):
+    from imagine.devices import resolve_device
+
+    monkeypatch.setenv("IMAGINE_AUTO_DEVICE", "cpu")  # what the tests set: CPU arithmetic
+    assert resolve_device("auto") == torch.device("cpu")
+    monkeypatch.setenv("IMAGINE_AUTO_DEVICE", "tpu")
+    with pytest.raises(ConfigError, match="unknown device 'tpu'"):
+        resolve_device("auto")
+    monkeypatch.delenv("IMAGINE_AUTO_DEVICE")
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert resolve_device("auto") == torch.device(expected)
+    assert resolve_device("cpu") == torch.device("cpu")  # an explicit device wins
