@@ -320,6 +320,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         {**TODAY, **HANDICAP, **TRUST, "value_expansion_weighting": "steve"}
         | {"imagination_gate": "random"},
     ),
+    "augmented, as s60, one M, mask gate on support, adaptive N_I": (
+        "augmented",
+        {**TODAY, **HANDICAP, **SUPPORT_TRUST},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
