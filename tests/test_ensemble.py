@@ -247,3 +247,26 @@ def test_evaluate_reports_the_disagreement_auroc(ensemble_run, capsys):
     assert written["imagined_disagreement_auroc"] == written["imagined_accuracy"][
         "disagreement_auroc"]  # fmt: skip
     assert "members as a detector of wrong imagined states: AUROC" in capsys.readouterr().out
+
+
+def test_disagreement_from_m_r_starts_is_in_units_of_v_posterior_scale(ensemble_run, monkeypatch):
+    """M_R's sigma is not in the checkpoint: the disagreement of rollouts from its states is
+    still in V's posterior scale (the oracle's 0.05), not divided by the floor 1e-6, so the
+    reported gate threshold is in the unit training used."""
+    from imagine.envs.gesture_puzzle import evaluation
+
+    config, folder = ensemble_run
+    agent = load_agent(folder)
+    agent.config = dataclasses.replace(config, imagination_from="memory")
+    assert agent.memory_starts is not None
+    seen = []
+    real = evaluation.imagine_rollouts
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["scale"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(evaluation, "imagine_rollouts", spy)
+    out = imagined_accuracy(agent, starts=12)
+    assert torch.allclose(seen[0], torch.full_like(seen[0], 0.05))
+    assert 0 < out["gate_threshold"] < 1e3

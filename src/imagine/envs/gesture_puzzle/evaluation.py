@@ -337,19 +337,21 @@ def imagined_transitions(
     states are first images of new episodes (the env seeded by the generator's initial seed),
     or, for an agent that imagines from M_R (``imagination_from: memory``) with its M_R in
     the checkpoint, the mu of states drawn uniformly from M_R (its sigma is not saved: the
-    rollouts start from mu)."""
+    rollouts start from mu, and the unit of the members' disagreement is V's posterior scale
+    on the first images, as in training it is V's on M_R's states)."""
     c = agent.config
+    envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP,
+                                  hand_switch_prob=c.hand_switch_prob)  # fmt: skip
+    obs, info = envs.reset(seed=generator.initial_seed())  # draws nothing from the generator
+    mu, sigma = agent.encoder.encode(obs, info["macrostate"])
+    unit = posterior_scale(sigma)
     if c.imagination_from == "memory" and agent.memory_starts is not None:
         held = agent.memory_starts[0]
         mu = held[torch.randint(len(held), (starts,), generator=generator)]
         sigma = torch.zeros_like(mu)
-    else:
-        envs = GesturePuzzleVectorEnv(starts, task=c.task, autoreset_mode=AutoresetMode.SAME_STEP,
-                                      hand_switch_prob=c.hand_switch_prob)  # fmt: skip
-        obs, info = envs.reset(seed=generator.initial_seed())
-        mu, sigma = agent.encoder.encode(obs, info["macrostate"])
+        unit = unit.mean().expand(starts)
     breadth = c.imagination_breadth
-    scale = posterior_scale(sigma).repeat_interleave(breadth).unsqueeze(0)
+    scale = unit.repeat_interleave(breadth).unsqueeze(0)
     if c.model_latents == "mu":
         sigma = torch.zeros_like(sigma)
     if model is None:
