@@ -1,14 +1,16 @@
 """Train fresh world models M offline on the real memory of an agent run and compare variants:
 the cheap way to tell which of M's settings makes it right on V's latents (issue 14).
 
-    .venv/bin/python scripts/m_offline.py RUN [RUN ...] [--updates 4000] [--batch 128]
+    .venv/bin/python scripts/m_offline.py RUN [RUN ...] [--updates 4000] [--batch 128] \
+        [--variants "samples, change of state, 20% dropout" ...]
 
 For each run (its last checkpoint: real memory M_R, V, task) and each variant (M's latents:
 samples of N(mu, sigma) or V's means; M's mean head: the next state or its change; dropout in
-all three of M's networks), trains a fresh M (seed 0) with ``--updates`` Adam steps on batches
-from that memory and prints M's accuracy as `imagine evaluate` measures it: the most likely
-next state on the non-terminal transitions, a sample of M on the same, and the most likely next
-state from the terminal states M never trained on (generalization).
+all three of M's networks; the MDN's covariance, diagonal or full), trains a fresh M (seed 0)
+with ``--updates`` Adam steps on batches from that memory and prints M's accuracy as `imagine
+evaluate` measures it: the most likely next state on the non-terminal transitions, a sample of
+M on the same, and the most likely next state from the terminal states M never trained on
+(generalization).
 """
 
 from __future__ import annotations
@@ -25,14 +27,20 @@ from imagine.learning.agent import load_agent
 from imagine.learning.memory import ReplayMemory, real_fields
 from imagine.models.world_model import PopulationWorldModel, WorldModel
 
-VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, dropout in M)
-    "samples, next state (paper)": (True, False, 0.0),
-    "samples, change of state": (True, True, 0.0),
-    "means, next state": (False, False, 0.0),
-    "means, change of state": (False, True, 0.0),
-    "samples, next state, 50% dropout": (True, False, 0.5),
-    "samples, change of state, 50% dropout": (True, True, 0.5),
-    "samples, change of state, 20% dropout": (True, True, 0.2),
+VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, dropout in M,
+    #                  the MDN's covariance)
+    "samples, next state (paper)": (True, False, 0.0, "diagonal"),
+    "samples, change of state": (True, True, 0.0, "diagonal"),
+    "means, next state": (False, False, 0.0, "diagonal"),
+    "means, change of state": (False, True, 0.0, "diagonal"),
+    "samples, next state, 50% dropout": (True, False, 0.5, "diagonal"),
+    "samples, change of state, 50% dropout": (True, True, 0.5, "diagonal"),
+    "samples, change of state, 20% dropout": (True, True, 0.2, "diagonal"),
+    "samples, change of state, 20% dropout, full covariance": (True, True, 0.2, "full"),
+    "means, change of state, 20% dropout": (False, True, 0.2, "diagonal"),
+    "means, change of state, 20% dropout, full covariance": (False, True, 0.2, "full"),
+    "samples, change of state, full covariance": (True, True, 0.0, "full"),
+    "means, change of state, full covariance": (False, True, 0.0, "full"),
 }
 
 
@@ -45,9 +53,10 @@ def real_memory(run: Path, latent_dim: int) -> ReplayMemory:
 
 
 def train_m(memory: ReplayMemory, latent_dim: int, resample: bool, residual: bool,
-            dropout: float, updates: int, batch: int) -> WorldModel:  # fmt: skip
+            dropout: float, covariance: str, updates: int, batch: int) -> WorldModel:  # fmt: skip
     torch.manual_seed(0)
-    model = WorldModel(latent_dim, dropout=dropout, reward_hidden=128, residual=residual)
+    model = WorldModel(latent_dim, dropout=dropout, reward_hidden=128, residual=residual,
+                       covariance=covariance)  # fmt: skip
     population = PopulationWorldModel([model])
     generator = torch.Generator().manual_seed(0)
     for _ in range(updates):
@@ -62,16 +71,24 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--updates", type=int, default=4000)
     parser.add_argument("--batch", type=int, default=128)
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        default=list(VARIANTS),
+        choices=list(VARIANTS),
+        metavar="NAME",
+        help="the variants to train (default: all)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    results: dict[str, list[tuple[float, float, float]]] = {v: [] for v in VARIANTS}
+    results: dict[str, list[tuple[float, float, float]]] = {v: [] for v in args.variants}
     for run in args.runs:
         agent = load_agent(run)
         memory = real_memory(run, agent.encoder.latent_dim)
         print(f"{run}: {agent.episode} episodes, {len(memory)} real transitions", flush=True)
-        for name, (resample, residual, dropout) in VARIANTS.items():
-            model = train_m(memory, agent.encoder.latent_dim, resample, residual, dropout,
-                            args.updates, args.batch)  # fmt: skip
+        for name in args.variants:
+            model = train_m(memory, agent.encoder.latent_dim, *VARIANTS[name], args.updates,
+                            args.batch)  # fmt: skip
             a = model_accuracy(model, agent.encoder, agent.config.task)
             general = a["transition_terminal"]
             results[name].append((a["transition_nonterminal"], a["transition_sampled"], general))

@@ -395,6 +395,12 @@ class AgentConfig:
     a CPU with AMX or avx512_bf16 and a GPU compute it fastest; README, issue 18). Evaluation,
     planning and the checkpoints are float32 either way. An agent's numbers match its run in a
     population bitwise with float32 only."""
+    model_covariance: str = "diagonal"
+    """Each component of M's mixture: diagonal (the paper: independent scales per latent
+    dimension) or full (N(mu_k, L_k L_k^T) with a learned Cholesky factor L_k, D (D - 1) / 2
+    more outputs per component). A diagonal Gaussian ignores how V's dimensions move together
+    from image to image, which bounds how often M's draws land on the right macrostate (README,
+    issue 14: 80.8% for a perfect diagonal M with the fast V, 95.1% with a full covariance)."""
     model_ensemble: int = 1
     """K: members of M's MDN per agent (PETS, MBPO), each with its own initialization and its
     own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
@@ -488,7 +494,8 @@ class AgentConfig:
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
                    "imagination_uncertainty": UNCERTAINTIES,
                    "value_expansion_weighting": ("mve", "steve"),
-                   "belief": ("observation", "filtered")}  # fmt: skip
+                   "belief": ("observation", "filtered"),
+                   "model_covariance": ("diagonal", "full")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(

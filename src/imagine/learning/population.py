@@ -74,7 +74,8 @@ def new_networks(
                        reward_hidden=config.reward_hidden,
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,
-                       ensemble=config.model_ensemble)  # fmt: skip
+                       ensemble=config.model_ensemble,
+                       covariance=config.model_covariance)  # fmt: skip
     return controller, model
 
 

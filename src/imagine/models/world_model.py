@@ -5,13 +5,17 @@ Three networks learned online from the real memory:
 - the MDN, p(z_{t+1} | z_t, a_t) as a mixture of ``K`` diagonal Gaussians (paper: 5), from 3
   hidden layers of 256 ReLU units with 50% dropout, with three heads: mixture weights (softmax),
   means (linear) and scales (softplus plus a floor, so they stay positive and the likelihood
-  finite where the paper's variance head is linear);
+  finite where the paper's variance head is linear); with ``covariance="full"`` a fourth head
+  gives each component's Cholesky factor below its diagonal, L_k = diag(sigma_k) + tril_k, so
+  that component k is N(mu_k, L_k L_k^T) (a full covariance: V's dimensions move together
+  from image to image, which a diagonal Gaussian cannot follow);
 - the r-network, the reward from the state alone (3 x 512 ReLU, 50% dropout, log-cosh loss);
 - the d-network, whether a state is terminal, from the state alone (2 x 256 ReLU, 50% dropout,
   binary cross-entropy).
 
 The MDN's loss is the negative log-likelihood of equation (6),
--log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp.
+-log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp (with a full covariance,
+N(z_{t+1}; mu_k, L_k L_k^T)).
 
 :class:`WorldModel` is one agent's M (what a checkpoint holds, what planning and the accuracy
 measurements use); :class:`PopulationWorldModel` is the M of P agents trained together (weights
@@ -53,7 +57,21 @@ class Mixture(NamedTuple):
     mu: torch.Tensor
     """(..., K, D) component means."""
     sigma: torch.Tensor
-    """(..., K, D) component scales (standard deviations)."""
+    """(..., K, D) component scales (standard deviations); with ``tril``, the diagonal of each
+    component's Cholesky factor."""
+    tril: torch.Tensor | None = None
+    """(..., K, D, D) a full-covariance mixture's Cholesky factors below their diagonal (zero
+    on and above it): component k is N(mu_k, L_k L_k^T) with L_k = diag(sigma_k) + tril_k.
+    None: diagonal Gaussians (the paper)."""
+
+
+COVARIANCES = ("diagonal", "full")
+"""The MDN's component covariances (``AgentConfig.model_covariance``)."""
+
+
+def tril_size(latent_dim: int) -> int:
+    """Entries of a D x D Cholesky factor strictly below its diagonal, D (D - 1) / 2."""
+    return latent_dim * (latent_dim - 1) // 2
 
 
 def mixture_from_heads(
@@ -63,13 +81,40 @@ def mixture_from_heads(
     latent_dim: int,
     min_sigma: float,
     z: torch.Tensor | None = None,
+    tril: torch.Tensor | None = None,
 ) -> Mixture:
-    """The mixture from the three heads' outputs (..., K), (..., K*D), (..., K*D). With the
-    current state ``z`` (..., D) given, the mean head predicts each component's change of state
-    (residual M): mu_k = z + head_k."""
+    """The mixture from the heads' outputs (..., K), (..., K*D), (..., K*D) and, for a full
+    covariance, (..., K*D(D-1)/2) (each component's factor below the diagonal, row by row).
+    With the current state ``z`` (..., D) given, the mean head predicts each component's change
+    of state (residual M): mu_k = z + head_k."""
     shape = (*pi.shape, latent_dim)
     means = mu.view(shape) if z is None else z.unsqueeze(-2) + mu.view(shape)
-    return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma)
+    factor = None
+    if tril is not None:
+        rows, cols = torch.tril_indices(latent_dim, latent_dim, -1, device=tril.device)
+        factor = tril.new_zeros(*shape, latent_dim)
+        factor[..., rows, cols] = tril.view(*pi.shape, -1)
+    return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma,
+                   factor)  # fmt: skip
+
+
+def scale_tril(m: Mixture) -> torch.Tensor:
+    """Each component's Cholesky factor L_k (..., K, D, D): diag(sigma_k) (+ tril_k)."""
+    diagonal = torch.diag_embed(m.sigma)
+    return diagonal if m.tril is None else diagonal + m.tril
+
+
+def component_log_normal(m: Mixture, x: torch.Tensor) -> torch.Tensor:
+    """log N(x; mu_k, Sigma_k) of each component (..., K) for points x (..., D):
+    -(|L_k^-1 (x - mu_k)|^2 + D log 2 pi) / 2 - sum_d log sigma_kd, where L_k = diag(sigma_k)
+    for a diagonal component (the paper's) and log det L_k = sum_d log sigma_kd either way."""
+    diff = x.unsqueeze(-2) - m.mu
+    if m.tril is None:
+        white = diff / m.sigma
+    else:
+        white = torch.linalg.solve_triangular(scale_tril(m), diff.unsqueeze(-1),
+                                              upper=False).squeeze(-1)  # fmt: skip
+    return -0.5 * (white.square() + LOG_2PI).sum(-1) - m.sigma.log().sum(-1)
 
 
 def sample_mixture(
@@ -86,26 +131,29 @@ def sample_mixture(
     sigma_k sqrt(tau); tau -> 0 approaches the mode, tau = 1 is the mixture itself (and the
     same draws)."""
     if temperature != 1.0:
-        m = Mixture(
-            torch.log_softmax(m.log_pi / temperature, -1), m.mu, m.sigma * math.sqrt(temperature)
-        )
+        root = math.sqrt(temperature)
+        m = Mixture(torch.log_softmax(m.log_pi / temperature, -1), m.mu, m.sigma * root,
+                    None if m.tril is None else m.tril * root)  # fmt: skip
     if component == "heaviest":
         k = m.log_pi.argmax(-1, keepdim=True)  # (N, 1)
     else:
         k = torch.multinomial(m.log_pi.exp(), 1, generator=generator)  # (N, 1)
-    index = k.unsqueeze(-1).expand(-1, 1, m.mu.shape[-1])
+    D = m.mu.shape[-1]
+    index = k.unsqueeze(-1).expand(-1, 1, D)
     mu, sigma = m.mu.gather(1, index).squeeze(1), m.sigma.gather(1, index).squeeze(1)
     if not spread:
         return mu
     eps = torch.randn(mu.shape, generator=generator, device=mu.device)
-    return mu + sigma * eps
+    if m.tril is None:
+        return mu + sigma * eps
+    tril = m.tril.gather(1, k[..., None, None].expand(-1, 1, D, D)).squeeze(1)  # (N, D, D)
+    return mu + sigma * eps + (tril @ eps.unsqueeze(-1)).squeeze(-1)
 
 
 def mixture_nll(mixture: Mixture, target: torch.Tensor) -> torch.Tensor:
-    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 6), per sample."""
-    z = (target.unsqueeze(-2) - mixture.mu) / mixture.sigma
-    log_normal = -0.5 * (z.square() + LOG_2PI).sum(-1) - mixture.sigma.log().sum(-1)
-    return -torch.logsumexp(mixture.log_pi + log_normal, dim=-1)
+    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 6), per sample; with a
+    full covariance, -log sum_k pi_k N(target; mu_k, L_k L_k^T)."""
+    return -torch.logsumexp(mixture.log_pi + component_log_normal(mixture, target), dim=-1)
 
 
 class MDN(nn.Module):
@@ -121,8 +169,11 @@ class MDN(nn.Module):
         dropout: float = 0.5,
         min_sigma: float = 1e-3,
         residual: bool = False,
+        covariance: str = "diagonal",
     ) -> None:
         super().__init__()
+        if covariance not in COVARIANCES:
+            raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
         self.latent_dim, self.n_actions, self.n_components = latent_dim, n_actions, n_components
         self.min_sigma, self.residual = min_sigma, residual
         self.body = mlp([latent_dim + n_actions, *[hidden] * layers], dropout)
@@ -132,13 +183,19 @@ class MDN(nn.Module):
         self.pi_head = nn.Linear(hidden, n_components)
         self.mu_head = nn.Linear(hidden, n_components * latent_dim)
         self.sigma_head = nn.Linear(hidden, n_components * latent_dim)
+        if covariance == "full":
+            # starts at zero: a full-covariance MDN begins as the diagonal one
+            self.tril_head = nn.Linear(hidden, n_components * tril_size(latent_dim))
+            nn.init.zeros_(self.tril_head.weight)
+            nn.init.zeros_(self.tril_head.bias)
 
     def forward(self, z: torch.Tensor, action: torch.Tensor) -> Mixture:
         """The mixture for latents (N, D) and integer actions (N,)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
+        tril = self.tril_head(h) if hasattr(self, "tril_head") else None
         return mixture_from_heads(self.pi_head(h), self.mu_head(h), self.sigma_head(h),
                                   self.latent_dim, self.min_sigma,
-                                  z if self.residual else None)  # fmt: skip
+                                  z if self.residual else None, tril)  # fmt: skip
 
     def loss(self, z: torch.Tensor, action: torch.Tensor, next_z: torch.Tensor) -> torch.Tensor:
         return mixture_nll(self(z, action), next_z).mean()
@@ -235,13 +292,15 @@ class WorldModel(nn.Module):
         residual: bool = False,
         ensemble: int = 1,
         reward_dropout: float | None = None,
+        covariance: str = "diagonal",
     ) -> None:
         super().__init__()
         self.dropout = dropout
         self.reward_dropout = dropout if reward_dropout is None else reward_dropout
 
         def mdn() -> MDN:
-            return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual)
+            return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual,
+                       covariance=covariance)  # fmt: skip
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
@@ -265,8 +324,7 @@ def responsible_mean(m: Mixture, observed: torch.Tensor) -> torch.Tensor:
     of highest posterior responsibility, argmax_k log pi_k + log N(observed; mu_k, sigma_k^2)
     (the terms of equation 6). Where one outcome dominates it is the mode; where M knows
     several (a hand that may move), the one the observation shows."""
-    x = (observed.unsqueeze(-2) - m.mu) / m.sigma
-    log_joint = m.log_pi - 0.5 * (x.square() + LOG_2PI).sum(-1) - m.sigma.log().sum(-1)
+    log_joint = m.log_pi + component_log_normal(m, observed)
     k = log_joint.argmax(-1)[..., None, None].expand(*m.mu.shape[:-2], 1, m.mu.shape[-1])
     return m.mu.gather(-2, k).squeeze(-2)
 
@@ -286,7 +344,7 @@ def members_spread(modes: torch.Tensor) -> torch.Tensor:
 
 class StackedMDN(nn.Module):
     """Many MDNs of one architecture as one stack (:mod:`imagine.models.stacked`): the body and
-    three heads of row r are those of ``mdns[r]``."""
+    heads of row r are those of ``mdns[r]`` (three heads, four with a full covariance)."""
 
     def __init__(self, mdns: Sequence[MDN], dropout: float) -> None:
         super().__init__()
@@ -295,14 +353,17 @@ class StackedMDN(nn.Module):
         self.pi_head = StackedLinear([m.pi_head for m in mdns])
         self.mu_head = StackedLinear([m.mu_head for m in mdns])
         self.sigma_head = StackedLinear([m.sigma_head for m in mdns])
+        if hasattr(mdns[0], "tril_head"):
+            self.tril_head = StackedLinear([m.tril_head for m in mdns])
 
     def forward(
         self, x: torch.Tensor, generators: Sequence[torch.Generator | None] | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, ...]:
         """The heads' outputs for inputs (R, N, in) (one row of networks each); dropout with
         ``generators`` (one per row)."""
         h = self.body(x, generators)
-        return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
+        heads = self.pi_head(h), self.mu_head(h), self.sigma_head(h)
+        return (*heads, self.tril_head(h)) if hasattr(self, "tril_head") else heads
 
 
 _DRAWS: dict[str, dict[str, Any]] = {
@@ -376,15 +437,17 @@ class PopulationWorldModel(nn.Module):
 
     def _heads(
         self, z: torch.Tensor, action: torch.Tensor, generators=None
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, ...]:
         """The MDN heads for members' rows: latents (P * K, N, D), actions (P * K, N)."""
         x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
         return self.mdn(x, self._member_generators(generators))
 
     def _mixture(self, heads: Sequence[torch.Tensor], z: torch.Tensor) -> Mixture:
-        """The mixtures from heads' outputs; ``z``: the rows' states, for a residual M."""
-        return mixture_from_heads(*heads, self.latent_dim, self.min_sigma,
-                                  z if self.residual else None)  # fmt: skip
+        """The mixtures from heads' outputs (a fourth: a full covariance's factors); ``z``: the
+        rows' states, for a residual M."""
+        tril = heads[3] if len(heads) > 3 else None
+        return mixture_from_heads(*heads[:3], self.latent_dim, self.min_sigma,
+                                  z if self.residual else None, tril)  # fmt: skip
 
     @torch.no_grad()
     def member_modes(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
