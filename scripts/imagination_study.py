@@ -324,6 +324,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, **HANDICAP, **SUPPORT_TRUST},
     ),
+    # issue 14: M's draws with a full covariance (V's dimensions move together)
+    "augmented, as s59 (the fast preset), M's components with a full covariance": (
+        "augmented",
+        {**TODAY, "model_covariance": "full"},
+    ),
+    "augmented, as s64, M on V's means": (
+        "augmented",
+        {**TODAY, "model_covariance": "full", "model_latents": "mu"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
