@@ -38,6 +38,8 @@ def assert_same_agent(a, b):
                  marks=pytest.mark.slow),
     # members' bootstrap batches, dropout masks and draws per agent
     pytest.param({"model_ensemble": 2}, marks=pytest.mark.slow),
+    # a full-covariance M's factors per agent
+    pytest.param({"model_covariance": "full"}, marks=pytest.mark.slow),
 ])  # fmt: skip
 def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
     settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,
