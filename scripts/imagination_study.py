@@ -333,6 +333,16 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "model_covariance": "full", "model_latents": "mu"},
     ),
+    "augmented, as s65, no dropout in the MDN (r and d keep 20%)": (
+        "augmented",
+        {
+            **TODAY,
+            "model_covariance": "full",
+            "model_latents": "mu",
+            "dropout": 0.0,
+            "reward_dropout": 0.2,
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
