@@ -343,6 +343,15 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "reward_dropout": 0.2,
         },
     ),
+    # issue 14, round 13: the scales of M's predictions fitted on the network without dropout
+    "augmented, as s64, the scales fitted without dropout's masks": (
+        "augmented",
+        {**TODAY, "model_covariance": "full", "model_scales": "clean"},
+    ),
+    "augmented, as s65, the scales fitted without dropout's masks": (
+        "augmented",
+        {**TODAY, "model_covariance": "full", "model_latents": "mu", "model_scales": "clean"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -6,7 +6,8 @@ the cheap way to tell which of M's settings makes it right on V's latents (issue
 
 For each run (its last checkpoint: real memory M_R, V, task) and each variant (M's latents:
 samples of N(mu, sigma) or V's means; M's mean head: the next state or its change; dropout in
-all three of M's networks; the MDN's covariance, diagonal or full), trains a fresh M (seed 0)
+all three of M's networks; the MDN's covariance, diagonal or full; the network its scales are
+fitted on, with or without dropout's masks), trains a fresh M (seed 0)
 with ``--updates`` Adam steps on batches from that memory and prints M's accuracy as `imagine
 evaluate` measures it: the most likely next state on the non-terminal transitions, a sample of
 M on the same, and the most likely next state from the terminal states M never trained on
@@ -27,8 +28,9 @@ from imagine.learning.agent import load_agent
 from imagine.learning.memory import ReplayMemory, real_fields
 from imagine.models.world_model import PopulationWorldModel, WorldModel
 
+# fmt: off
 VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, dropout in M,
-    #                  the MDN's covariance)
+    #                  the MDN's covariance[, the network its scales are fitted on])
     "samples, next state (paper)": (True, False, 0.0, "diagonal"),
     "samples, change of state": (True, True, 0.0, "diagonal"),
     "means, next state": (False, False, 0.0, "diagonal"),
@@ -41,7 +43,14 @@ VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, 
     "means, change of state, 20% dropout, full covariance": (False, True, 0.2, "full"),
     "samples, change of state, full covariance": (True, True, 0.0, "full"),
     "means, change of state, full covariance": (False, True, 0.0, "full"),
+    "samples, change of state, 20% dropout, clean scales": (True, True, 0.2, "diagonal", "clean"),
+    "samples, change of state, 20% dropout, full covariance, clean scales":
+        (True, True, 0.2, "full", "clean"),
+    "means, change of state, 20% dropout, clean scales": (False, True, 0.2, "diagonal", "clean"),
+    "means, change of state, 20% dropout, full covariance, clean scales":
+        (False, True, 0.2, "full", "clean"),
 }
+# fmt: on
 
 
 def real_memory(run: Path, latent_dim: int) -> ReplayMemory:
@@ -52,11 +61,12 @@ def real_memory(run: Path, latent_dim: int) -> ReplayMemory:
     return memory
 
 
-def train_m(memory: ReplayMemory, latent_dim: int, resample: bool, residual: bool,
-            dropout: float, covariance: str, updates: int, batch: int) -> WorldModel:  # fmt: skip
+def train_m(memory: ReplayMemory, latent_dim: int, updates: int, batch: int, resample: bool,
+            residual: bool, dropout: float, covariance: str,
+            scales: str = "dropout") -> WorldModel:  # fmt: skip
     torch.manual_seed(0)
     model = WorldModel(latent_dim, dropout=dropout, reward_hidden=128, residual=residual,
-                       covariance=covariance)  # fmt: skip
+                       covariance=covariance, scales=scales)  # fmt: skip
     population = PopulationWorldModel([model])
     generator = torch.Generator().manual_seed(0)
     for _ in range(updates):
@@ -87,8 +97,8 @@ def main() -> None:
         memory = real_memory(run, agent.encoder.latent_dim)
         print(f"{run}: {agent.episode} episodes, {len(memory)} real transitions", flush=True)
         for name in args.variants:
-            model = train_m(memory, agent.encoder.latent_dim, *VARIANTS[name], args.updates,
-                            args.batch)  # fmt: skip
+            model = train_m(memory, agent.encoder.latent_dim, args.updates, args.batch,
+                            *VARIANTS[name])  # fmt: skip
             a = model_accuracy(model, agent.encoder, agent.config.task)
             general = a["transition_terminal"]
             results[name].append((a["transition_nonterminal"], a["transition_sampled"], general))

@@ -40,6 +40,8 @@ def assert_same_agent(a, b):
     pytest.param({"model_ensemble": 2}, marks=pytest.mark.slow),
     # a full-covariance M's factors per agent
     pytest.param({"model_covariance": "full"}, marks=pytest.mark.slow),
+    # the clean scale heads' mask-free pass per agent
+    pytest.param({"model_scales": "clean", "model_covariance": "full"}, marks=pytest.mark.slow),
 ])  # fmt: skip
 def test_agents_in_a_population_have_the_numbers_they_have_alone(tmp_path, overrides):
     settings = {"encoder": "oracle", "method": "augmented", "episodes": 200,

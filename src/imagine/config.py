@@ -401,6 +401,14 @@ class AgentConfig:
     more outputs per component). A diagonal Gaussian ignores how V's dimensions move together
     from image to image, which bounds how often M's draws land on the right macrostate (README,
     issue 14: 80.8% for a perfect diagonal M with the fast V, 95.1% with a full covariance)."""
+    model_scales: str = "dropout"
+    """Which network the scales of M's predictions are fitted on: dropout (the paper: the
+    network with dropout's masks, beside its means) or clean (second scale heads, fitted by
+    equation 6 on the same network without the masks, the one that predicts; the body,
+    weights and means learn exactly as with dropout). Dropout's masks move the means from
+    update to update, so scales fitted beside them are wider than the next states' spread
+    when M predicts (README, issue 14, round 13). Costs a mask-free pass of the MDN's body per
+    update (no gradient) and one more head."""
     model_ensemble: int = 1
     """K: members of M's MDN per agent (PETS, MBPO), each with its own initialization and its
     own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
@@ -495,7 +503,8 @@ class AgentConfig:
                    "imagination_uncertainty": UNCERTAINTIES,
                    "value_expansion_weighting": ("mve", "steve"),
                    "belief": ("observation", "filtered"),
-                   "model_covariance": ("diagonal", "full")}  # fmt: skip
+                   "model_covariance": ("diagonal", "full"),
+                   "model_scales": ("dropout", "clean")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(

@@ -75,7 +75,8 @@ def new_networks(
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,
                        ensemble=config.model_ensemble,
-                       covariance=config.model_covariance)  # fmt: skip
+                       covariance=config.model_covariance,
+                       scales=config.model_scales)  # fmt: skip
     return controller, model
 
 

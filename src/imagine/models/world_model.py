@@ -30,6 +30,7 @@ does not know. The paper's M is K = 1.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -67,6 +68,11 @@ class Mixture(NamedTuple):
 
 COVARIANCES = ("diagonal", "full")
 """The MDN's component covariances (``AgentConfig.model_covariance``)."""
+
+SCALE_FITS = ("dropout", "clean")
+"""Which network the scales of M's predictions are fitted on (``AgentConfig.model_scales``):
+``dropout``, the network with dropout's masks, beside the means (the paper); ``clean``, the
+network without them, the one that predicts (:class:`MDN`, ``clean_scales``)."""
 
 
 def tril_size(latent_dim: int) -> int:
@@ -170,6 +176,7 @@ class MDN(nn.Module):
         min_sigma: float = 1e-3,
         residual: bool = False,
         covariance: str = "diagonal",
+        clean_scales: bool = False,
     ) -> None:
         super().__init__()
         if covariance not in COVARIANCES:
@@ -188,14 +195,23 @@ class MDN(nn.Module):
             self.tril_head = nn.Linear(hidden, n_components * tril_size(latent_dim))
             nn.init.zeros_(self.tril_head.weight)
             nn.init.zeros_(self.tril_head.bias)
+        if clean_scales:  # copies: no random draw, the other networks start as without them
+            self.clean_sigma_head = copy.deepcopy(self.sigma_head)
+            if covariance == "full":
+                self.clean_tril_head = copy.deepcopy(self.tril_head)
 
     def forward(self, z: torch.Tensor, action: torch.Tensor) -> Mixture:
-        """The mixture for latents (N, D) and integer actions (N,)."""
+        """The mixture for latents (N, D) and integer actions (N,); in eval mode (no dropout)
+        with the clean scale heads, where there are (``clean_scales``)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
-        tril = self.tril_head(h) if hasattr(self, "tril_head") else None
-        return mixture_from_heads(self.pi_head(h), self.mu_head(h), self.sigma_head(h),
-                                  self.latent_dim, self.min_sigma,
-                                  z if self.residual else None, tril)  # fmt: skip
+        clean = not self.training and hasattr(self, "clean_sigma_head")
+        sigma = (self.clean_sigma_head if clean else self.sigma_head)(h)
+        tril = None
+        if hasattr(self, "tril_head"):
+            tril = (self.clean_tril_head if clean else self.tril_head)(h)
+        return mixture_from_heads(self.pi_head(h), self.mu_head(h), sigma, self.latent_dim,
+                                  self.min_sigma, z if self.residual else None,
+                                  tril)  # fmt: skip
 
     def loss(self, z: torch.Tensor, action: torch.Tensor, next_z: torch.Tensor) -> torch.Tensor:
         return mixture_nll(self(z, action), next_z).mean()
@@ -293,14 +309,17 @@ class WorldModel(nn.Module):
         ensemble: int = 1,
         reward_dropout: float | None = None,
         covariance: str = "diagonal",
+        scales: str = "dropout",
     ) -> None:
         super().__init__()
+        if scales not in SCALE_FITS:
+            raise ValueError(f"scales must be one of {SCALE_FITS}, got {scales!r}")
         self.dropout = dropout
         self.reward_dropout = dropout if reward_dropout is None else reward_dropout
 
         def mdn() -> MDN:
             return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual,
-                       covariance=covariance)  # fmt: skip
+                       covariance=covariance, clean_scales=scales == "clean")  # fmt: skip
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
@@ -344,7 +363,8 @@ def members_spread(modes: torch.Tensor) -> torch.Tensor:
 
 class StackedMDN(nn.Module):
     """Many MDNs of one architecture as one stack (:mod:`imagine.models.stacked`): the body and
-    heads of row r are those of ``mdns[r]`` (three heads, four with a full covariance)."""
+    heads of row r are those of ``mdns[r]`` (three heads, four with a full covariance, and the
+    clean scale heads, :class:`MDN`'s ``clean_scales``)."""
 
     def __init__(self, mdns: Sequence[MDN], dropout: float) -> None:
         super().__init__()
@@ -355,15 +375,29 @@ class StackedMDN(nn.Module):
         self.sigma_head = StackedLinear([m.sigma_head for m in mdns])
         if hasattr(mdns[0], "tril_head"):
             self.tril_head = StackedLinear([m.tril_head for m in mdns])
+        self.clean_scales = hasattr(mdns[0], "clean_sigma_head")
+        if self.clean_scales:
+            self.clean_sigma_head = StackedLinear([m.clean_sigma_head for m in mdns])
+            if hasattr(mdns[0], "clean_tril_head"):
+                self.clean_tril_head = StackedLinear([m.clean_tril_head for m in mdns])
 
     def forward(
         self, x: torch.Tensor, generators: Sequence[torch.Generator | None] | None = None
     ) -> tuple[torch.Tensor, ...]:
         """The heads' outputs for inputs (R, N, in) (one row of networks each); dropout with
-        ``generators`` (one per row)."""
+        ``generators`` (one per row), else (the network that predicts) the clean scale heads
+        where there are."""
         h = self.body(x, generators)
-        heads = self.pi_head(h), self.mu_head(h), self.sigma_head(h)
-        return (*heads, self.tril_head(h)) if hasattr(self, "tril_head") else heads
+        return self.heads(h, clean=generators is None and self.clean_scales)
+
+    def heads(self, h: torch.Tensor, clean: bool = False) -> tuple[torch.Tensor, ...]:
+        """The heads on the body's features ``h``: weights, means, scales (and factors); with
+        ``clean``, the clean scale heads' scales (and factors)."""
+        sigma = self.clean_sigma_head if clean else self.sigma_head
+        heads = self.pi_head(h), self.mu_head(h), sigma(h)
+        if not hasattr(self, "tril_head"):
+            return heads
+        return (*heads, (self.clean_tril_head if clean else self.tril_head)(h))
 
 
 _DRAWS: dict[str, dict[str, Any]] = {
@@ -448,6 +482,24 @@ class PopulationWorldModel(nn.Module):
         tril = heads[3] if len(heads) > 3 else None
         return mixture_from_heads(*heads[:3], self.latent_dim, self.min_sigma,
                                   z if self.residual else None, tril)  # fmt: skip
+
+    def _clean_scale_nll(
+        self, z: torch.Tensor, action: torch.Tensor, target: torch.Tensor
+    ) -> torch.Tensor:
+        """Equation (6)'s loss (P * K, B) of the network without dropout's masks, the one that
+        predicts, for its clean scale heads alone (``model_scales: clean``): the body, weights
+        and means are held as they are (no gradient), so they learn exactly as the paper's M.
+
+        Dropout's masks move the means from update to update, and the scales learned beside
+        them (equation 6 on the masked network) must cover that jitter too, so at prediction,
+        where the masks are off, they are wider than the next states' spread about the means
+        (README, issue 14, round 13). The clean heads are fitted to that spread."""
+        x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
+        with torch.no_grad():
+            h = self.mdn.body(x)  # no generators: no masks
+            held = self.mdn.pi_head(h), self.mdn.mu_head(h)
+        heads = self.mdn.heads(h, clean=True)
+        return mixture_nll(self._mixture((*held, *heads[2:]), z), target).mean(-1)
 
     @torch.no_grad()
     def member_modes(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -604,12 +656,15 @@ class PopulationWorldModel(nn.Module):
             next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
         else:
             next_z = batch["next_mu"]
-        losses = {}
+        losses, scale_nll = {}, None
         if mdn:
-            member_z = self._member_rows(z)
-            heads = self._heads(member_z, self._member_rows(batch["action"]), generators)
-            nll = mixture_nll(self._mixture(heads, member_z), self._member_rows(next_z)).mean(-1)
+            member_z, member_next = self._member_rows(z), self._member_rows(next_z)
+            member_action = self._member_rows(batch["action"])
+            heads = self._heads(member_z, member_action, generators)
+            nll = mixture_nll(self._mixture(heads, member_z), member_next).mean(-1)
             losses["mdn"] = nll.view(len(generators), self.ensemble)  # (P, K)
+            if self.mdn.clean_scales:
+                scale_nll = self._clean_scale_nll(member_z, member_action, member_next)
         first = slice(0, batch["action"].shape[1] // (self.ensemble if mdn else 1))  # member 0's
         reward = self.reward(next_z[:, first], generators).squeeze(-1)
         terminal = self.terminal(next_z[:, first], generators).squeeze(-1)
@@ -618,7 +673,10 @@ class PopulationWorldModel(nn.Module):
             terminal, batch["done"][:, first], reduction="none"
         ).mean(-1)
         self.optimizer.zero_grad()
-        sum(loss[agents].sum() for loss in losses.values()).backward()
+        total = sum(loss[agents].sum() for loss in losses.values())
+        if scale_nll is not None:  # the clean scale heads' own loss (not logged)
+            total = total + scale_nll.view(len(generators), self.ensemble)[agents].sum()
+        total.backward()
         self.optimizer.step(agents)
         if mdn:
             nll = losses["mdn"]
