@@ -43,6 +43,7 @@ VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, 
     "means, change of state, 20% dropout, full covariance": (False, True, 0.2, "full"),
     "samples, change of state, full covariance": (True, True, 0.0, "full"),
     "means, change of state, full covariance": (False, True, 0.0, "full"),
+    "samples, next state, 50% dropout, clean scales": (True, False, 0.5, "diagonal", "clean"),
     "samples, change of state, 20% dropout, clean scales": (True, True, 0.2, "diagonal", "clean"),
     "samples, change of state, 20% dropout, full covariance, clean scales":
         (True, True, 0.2, "full", "clean"),
