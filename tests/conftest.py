@@ -9,3 +9,23 @@ os.environ.setdefault("IMAGINE_AUTO_DEVICE", "cpu")  # CPU arithmetic on a GPU m
 import torch
 
 torch.set_num_threads(1)
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def smoke_agent(tmp_path):
+    """Train one `smoke` augmented agent (oracle encoder, 30 episodes, imagination from
+    episode 10) with ``overrides``, save it, and return (its config, the agent loaded back)."""
+    from imagine.config import agent_preset
+    from imagine.learning.agent import load_agent
+    from imagine.learning.training import train_population
+
+    def train(**overrides):
+        config = agent_preset("smoke", encoder="oracle", method="augmented", episodes=30,
+                              imagination_start=10, log_every=10, checkpoint_every=10,
+                              accuracy_every=10, **overrides)  # fmt: skip
+        train_population([config], [tmp_path / "run"], threads=1)
+        return config, load_agent(tmp_path / "run")
+
+    return train

@@ -7,10 +7,7 @@ import pytest
 import torch
 from torch import distributions
 
-from imagine.config import agent_preset
 from imagine.errors import ConfigError
-from imagine.learning.agent import load_agent
-from imagine.learning.training import train_population
 from imagine.models.world_model import (
     MDN,
     Mixture,
@@ -151,12 +148,8 @@ def test_population_m_with_full_covariance_learns_each_agents_own_and_exports_it
     assert torch.allclose(copied[3][0:2], copied[3][2:4], atol=1e-6)
 
 
-def test_a_full_covariance_agent_trains_saves_and_loads(tmp_path):
-    config = agent_preset("smoke", encoder="oracle", method="augmented", episodes=30,
-                          imagination_start=10, log_every=10, checkpoint_every=10,
-                          accuracy_every=10, model_covariance="full")  # fmt: skip
-    train_population([config], [tmp_path / "run"], threads=1)
-    agent = load_agent(tmp_path / "run")
+def test_a_full_covariance_agent_trains_saves_and_loads(smoke_agent):
+    config, agent = smoke_agent(model_covariance="full")
     assert agent.config.model_covariance == "full"
     assert (agent.model.mdn.tril_head.weight != 0).any()  # it learned off-diagonal factors
     with pytest.raises(ConfigError, match="model_covariance"):

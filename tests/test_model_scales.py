@@ -3,9 +3,7 @@
 import pytest
 import torch
 
-from imagine.config import AgentConfig, ConfigError, agent_preset
-from imagine.learning.agent import load_agent
-from imagine.learning.training import train_population
+from imagine.config import AgentConfig, ConfigError
 from imagine.models.world_model import MDN, PopulationWorldModel, WorldModel
 
 NOISE = 0.05
@@ -92,12 +90,8 @@ def test_an_exported_mdn_predicts_with_the_clean_heads_in_eval_mode_only():
     assert {"clean_sigma_head.weight", "clean_tril_head.weight"} <= set(full.state_dict())
 
 
-def test_a_clean_scales_agent_trains_saves_and_loads(tmp_path):
-    config = agent_preset("smoke", encoder="oracle", method="augmented", episodes=30,
-                          imagination_start=10, log_every=10, checkpoint_every=10,
-                          accuracy_every=10, model_scales="clean")  # fmt: skip
-    train_population([config], [tmp_path / "run"], threads=1)
-    agent = load_agent(tmp_path / "run")
+def test_a_clean_scales_agent_trains_saves_and_loads(smoke_agent):
+    _, agent = smoke_agent(model_scales="clean")
     mdn = agent.model.mdn
     assert agent.config.model_scales == "clean" and not mdn.training
     assert not torch.equal(mdn.clean_sigma_head.weight, mdn.sigma_head.weight)  # learned apart
