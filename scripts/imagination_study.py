@@ -352,6 +352,20 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "model_covariance": "full", "model_latents": "mu", "model_scales": "clean"},
     ),
+    # issue 14, round 14: C learns more from imagination per step, early where the fine curves
+    # ask it to pay (round 8 measured N_I = 2 on s44, before the belief and value expansion)
+    "augmented, as s59 (the fast preset), N_I = 2 imagined C updates per step": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 2},
+    ),
+    "augmented, as s59 (the fast preset), N_I = 3 imagined C updates per step": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3},
+    ),
+    "baseline, 2 real C updates in place of s69's 2 imagined ones from episode 100": (
+        "baseline",
+        {"imagination_start": 100, "real_in_place_of_imagined": True, "n_imaginary_updates": 2},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

@@ -50,6 +50,9 @@ VARIANTS = {  # name: (re-sample latents from N(mu, sigma), residual mean head, 
     "means, change of state, 20% dropout, clean scales": (False, True, 0.2, "diagonal", "clean"),
     "means, change of state, 20% dropout, full covariance, clean scales":
         (False, True, 0.2, "full", "clean"),
+    "samples, next state, 20% dropout, full covariance, clean scales":
+        (True, False, 0.2, "full", "clean"),
+    "samples, change of state, full covariance, clean scales": (True, True, 0.0, "full", "clean"),
 }
 # fmt: on
 
@@ -90,6 +93,11 @@ def main() -> None:
         metavar="NAME",
         help="the variants to train (default: all)",
     )
+    parser.add_argument(
+        "--jitter",
+        action="store_true",
+        help="also print each M's jitter against the next state's cloud (scripts/m_jitter.py)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     results: dict[str, list[tuple[float, float, float]]] = {v: [] for v in args.variants}
@@ -106,6 +114,14 @@ def main() -> None:
             print(f"  {name}: most likely {a['transition_nonterminal']:.1%}, sampled "
                   f"{a['transition_sampled']:.1%}, from terminal states {general:.1%}",
                   flush=True)  # fmt: skip
+            if args.jitter:
+                from m_jitter import measure
+
+                m = measure(agent, 16, model, sample=VARIANTS[name][0])
+                fresh = m["draws right from fresh images"]
+                print(f"    draws right from fresh images {fresh:.1%}; "
+                      + "; ".join(f"{k} " + " ".join(f"{x:.2f}" for x in m[k].tolist())
+                                  for k in ("cloud", "jitter", "scales")), flush=True)  # fmt: skip
     print(f"\n| M trained offline ({args.updates} x {args.batch}) | most likely, non-terminal | "
           "sampled, non-terminal | most likely, from terminal states |")  # fmt: skip
     print("| --- | --- | --- | --- |")
