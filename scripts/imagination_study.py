@@ -36,10 +36,11 @@ SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
-               "reward_dropout": None, "belief": "observation", "value_expansion": 0}  # fmt: skip
+               "reward_dropout": None, "belief": "observation", "value_expansion": 0,
+               "n_imaginary_updates": 1}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
-squared error for r and a residual M with 20% dropout): every setting starts from it, so a
-setting means what it meant when it ran."""
+squared error for r and a residual M with 20% dropout, round 11 the belief and value expansion,
+round 14 N_I = 2): every setting starts from it, so a setting means what it meant when it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 ROUND_6 = {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6}
 """s39: the `fast` preset's imagination after round 6."""
@@ -365,6 +366,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "baseline, 2 real C updates in place of s69's 2 imagined ones from episode 100": (
         "baseline",
         {"imagination_start": 100, "real_in_place_of_imagined": True, "n_imaginary_updates": 2},
+    ),
+    "augmented, as s69 (the fast preset), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**TODAY, **HANDICAP, "n_imaginary_updates": 2},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
