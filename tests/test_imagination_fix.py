@@ -281,6 +281,34 @@ def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
         agent_preset("fast", method="augmented", real_in_place_of_imagined=True)
 
 
+def test_the_fast_agent_learns_twice_from_imagination_per_step_and_its_control_twice_from_real():
+    """The `fast` preset's N_I = 2 (issue 14, round 14): past I_start each real step makes one
+    C update on a real batch and two on imagined ones; the baseline's control for imagination
+    makes its two in their place on real batches, and the plain baseline one update alone."""
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.population import Population
+
+    def updates_per_step(**overrides) -> list[int]:
+        config = agent_preset("fast", encoder="oracle", imagination_start=0, **overrides)
+        population = Population([config], OracleEncoder())
+        calls = []
+        update = population.controller.update
+        population.controller.update = lambda *a, **k: calls.append(1) or update(*a, **k)
+        counts = []
+        for _ in range(5):
+            population._start_episodes()
+            before = len(calls)
+            population.step()
+            counts.append(len(calls) - before)
+        return counts
+
+    assert agent_preset("fast").n_imaginary_updates == 2
+    assert agent_preset("paper").n_imaginary_updates == 1  # the paper's one imaginary update
+    assert updates_per_step() == [3] * 5
+    assert updates_per_step(method="baseline", real_in_place_of_imagined=True) == [3] * 5
+    assert updates_per_step(method="baseline") == [1] * 5
+
+
 @pytest.mark.parametrize("start", ["current", "memory"])
 def test_imagined_rollouts_start_where_imagination_from_says(start):
     """imagination_from=current: every rollout starts at the agent's current state (the paper);
