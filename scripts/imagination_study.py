@@ -371,6 +371,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, **HANDICAP, "n_imaginary_updates": 2},
     ),
+    "augmented, as s70 (N_I = 3), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**TODAY, **HANDICAP, "n_imaginary_updates": 3},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
