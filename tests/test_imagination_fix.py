@@ -281,10 +281,10 @@ def test_the_real_update_control_adds_real_updates_from_i_start_on(tmp_path):
         agent_preset("fast", method="augmented", real_in_place_of_imagined=True)
 
 
-def test_the_fast_agent_learns_twice_from_imagination_per_step_and_its_control_twice_from_real():
-    """The `fast` preset's N_I = 2 (issue 14, round 14): past I_start each real step makes one
-    C update on a real batch and two on imagined ones; the baseline's control for imagination
-    makes its two in their place on real batches, and the plain baseline one update alone."""
+def test_the_fast_agent_learns_thrice_from_imagination_per_step_and_its_control_from_real():
+    """The `fast` preset's N_I = 3 (issue 14, round 14): past I_start each real step makes one
+    C update on a real batch and three on imagined ones; the baseline's control for imagination
+    makes its three in their place on real batches, and the plain baseline one update alone."""
     from imagine.envs.gesture_puzzle.encoders import OracleEncoder
     from imagine.learning.population import Population
 
@@ -302,10 +302,10 @@ def test_the_fast_agent_learns_twice_from_imagination_per_step_and_its_control_t
             counts.append(len(calls) - before)
         return counts
 
-    assert agent_preset("fast").n_imaginary_updates == 2
+    assert agent_preset("fast").n_imaginary_updates == 3
     assert agent_preset("paper").n_imaginary_updates == 1  # the paper's one imaginary update
-    assert updates_per_step() == [3] * 5
-    assert updates_per_step(method="baseline", real_in_place_of_imagined=True) == [3] * 5
+    assert updates_per_step() == [4] * 5
+    assert updates_per_step(method="baseline", real_in_place_of_imagined=True) == [4] * 5
     assert updates_per_step(method="baseline") == [1] * 5
 
 
