@@ -375,6 +375,16 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, **HANDICAP, "n_imaginary_updates": 3},
     ),
+    "baseline, 3 real C updates in place of s70's 3 imagined ones from episode 100": (
+        "baseline",
+        {"imagination_start": 100, "real_in_place_of_imagined": True, "n_imaginary_updates": 3},
+    ),
+    # the control inside the augmented agent: M's belief and value expansion kept, imagination's
+    # C updates replaced by as many on real batches (from the first step, N_R = 4)
+    "augmented, as s70 (the fast preset), 3 real C updates in place of the 3 imagined ones": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 0, "n_real_updates": 4},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
