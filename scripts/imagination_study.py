@@ -385,6 +385,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "n_imaginary_updates": 0, "n_real_updates": 4},
     ),
+    "augmented, as s75 (N_R = 4) with s70's 3 imagined C updates as well": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3, "n_real_updates": 4},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
