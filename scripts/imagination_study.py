@@ -389,6 +389,11 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "n_imaginary_updates": 3, "n_real_updates": 4},
     ),
+    # issue 14, round 15: what replay cannot give, the actions C's behaviour did not take
+    "augmented, as s70 (the fast preset), imagination over every action (one step each)": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

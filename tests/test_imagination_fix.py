@@ -569,3 +569,41 @@ def test_split_models_take_the_state_from_one_m_and_the_reward_from_the_other():
             learned = p.model.predict_reward(data["next_z"][-1:].unsqueeze(0))[0]
             assert torch.allclose(data["reward"][-1:], learned)
             assert not np.isin(data["reward"].numpy(), [-1.0, -5.0, 50.0]).all()
+
+
+def test_imagination_over_every_action_backs_up_each_start_through_m():
+    """imagination_actions=all: from each of the I_B starts one step of every action, whatever
+    C would choose and however deep I_D allows; each next state is M's mode for it."""
+    torch.manual_seed(0)
+    model = PopulationWorldModel([WorldModel(4, dropout=0.0)])
+    controller = PopulationController([Controller(4)])
+    mu, sigma = torch.randn(1, 3, 4), torch.zeros(1, 3, 4)
+    out = imagine_rollouts(model, controller, mu, sigma, 3, 5, [0.0],
+                           [torch.Generator().manual_seed(0)], draw="mode",
+                           actions="all")[0]  # fmt: skip
+    assert out["z"].shape == (3 * 6, 4)
+    assert bool((out["step"] == 0).all())  # one step each, not I_D
+    for b in range(3):
+        mine = out["rollout"] == b
+        assert sorted(out["action"][mine].tolist()) == list(range(6))
+        assert bool((out["z"][mine] == mu[0, b]).all())
+    expected = model.mode(out["z"].unsqueeze(0), out["action"].unsqueeze(0))[0]
+    assert torch.allclose(out["next_z"], expected, atol=1e-6)
+    with pytest.raises(ConfigError, match="imagination_actions must be one of policy, all"):
+        agent_preset("fast", imagination_actions="some")
+
+
+def test_an_agent_imagining_every_action_fills_its_imaginary_memory_with_them():
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.population import Population
+
+    config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
+                          imagination_breadth=2, imagination_from="memory",
+                          imagination_actions="all")  # fmt: skip
+    population = Population([config], OracleEncoder())
+    for _ in range(3):
+        population._start_episodes()
+        population.step()
+    assert int(population.imaginary.size[0]) == 3 * 2 * 6
+    newest = population.imaginary.newest(12)
+    assert sorted(newest["action"].tolist()) == sorted(list(range(6)) * 2)

@@ -344,6 +344,11 @@ class AgentConfig:
     current latent state, so with a near-greedy C they retrace the path C is about to take) or
     memory (Dyna, MBPO: each from the state of a transition drawn uniformly from M_R, so M
     hands C rollouts from states and actions the real path is not on)."""
+    imagination_actions: str = "policy"
+    """What the imagined rollouts do from their starts: policy (C acts epsilon-greedily for up
+    to I_D steps; the paper) or all (one step of every action from each of the I_B starts,
+    I_B x A transitions a step: M tells C what the actions its behaviour did not take would
+    have done, which replay cannot; :func:`imagine.learning.imagination.every_action`)."""
     imagination_epsilon: float = -1.0
     """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
     paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
@@ -498,6 +503,7 @@ class AgentConfig:
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode", "component", "outcome"),
                    "imagination_from": ("current", "memory"),
+                   "imagination_actions": ("policy", "all"),
                    "imagination_gate": GATES, "imagination_model": IMAGINATION_MODELS,
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
                    "imagination_uncertainty": UNCERTAINTIES,

@@ -65,6 +65,7 @@ def imagine_rollouts(
     draw: str = "sample",
     scale: torch.Tensor | None = None,
     temperature: float = 1.0,
+    actions: str = "policy",
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
     disagreement, rollout, step)`` of ``breadth`` rollouts of up to ``depth`` steps from its
@@ -75,7 +76,9 @@ def imagine_rollouts(
     paper; at ``temperature``, :func:`~imagine.models.world_model.sample_mixture`), or its mode (the
     mean of the heaviest component). ``scale``: the unit of
     disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
-    ``sigma`` (pass V's own when ``sigma`` is not V's)."""
+    ``sigma`` (pass V's own when ``sigma`` is not V's). ``actions``: policy (C acts
+    epsilon-greedily, the paper) or all (:func:`every_action`: one step of each action from
+    each start, ``depth`` ignored)."""
     if mu.dim() == 2:
         mu, sigma = mu.unsqueeze(1), sigma.unsqueeze(1)
     else:
@@ -85,15 +88,19 @@ def imagine_rollouts(
     unit = posterior_scale(sigma) if scale is None else scale.view(P, -1)
     unit = unit.expand(P, breadth)
     z = agent_normal(mu.expand(shape), sigma.expand(shape), generators)
+    rollout = torch.arange(breadth, device=mu.device).expand(P, breadth)
+    fixed = None
+    if actions == "all":
+        z, unit, rollout, fixed = every_action(z, unit, rollout, controller.n_actions)
+        breadth, depth = z.shape[1], 1
     going = torch.tensor([g is not None for g in generators], device=mu.device)
     alive = going.unsqueeze(1).expand(P, breadth).clone()
     steps: list[tuple[torch.Tensor, ...]] = []  # each step's (P, breadth, ...) values
     kept: list[torch.Tensor] = []  # which rollouts were alive at each step
-    rollout = torch.arange(breadth, device=mu.device).expand(P, breadth)
     for t in range(depth):
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
-        action = controller.act(z, eps, drawing)
+        action = controller.act(z, eps, drawing) if fixed is None else fixed
         next_z, spread = model.predict(z, action, drawing, draw, temperature)
         done = model.is_terminal(next_z)
         reward = model.predict_reward(next_z)
@@ -113,6 +120,22 @@ def imagine_rollouts(
         else {key: value[:, i][mask[:, i]] for key, value in zip(FIELDS, stacked, strict=True)}
         for i, generator in enumerate(generators)
     ]
+
+
+def every_action(
+    z: torch.Tensor, unit: torch.Tensor, rollout: torch.Tensor, n_actions: int
+) -> tuple[torch.Tensor, ...]:
+    """Imagination over every action (``imagination_actions: all``): each start latent of
+    ``z`` (P, B, D) repeated once per action, with its unit of disagreement and rollout index,
+    and the actions 0..A-1 beside each: (P, B * A, ...). One step of each is a full backup of
+    the start state through M (Sutton and Barto's expected update, with M's draw for the
+    expectation): C learns the value of the actions its behaviour did not take there, which no
+    replayed transition holds (van Hasselt et al. 2019: a model used only for transitions from
+    observed states with the actions taken there adds little to replay)."""
+    P, B, _ = z.shape
+    action = torch.arange(n_actions, device=z.device).repeat(B).expand(P, B * n_actions)
+    return (z.repeat_interleave(n_actions, 1), unit.repeat_interleave(n_actions, 1),
+            rollout.repeat_interleave(n_actions, 1), action)  # fmt: skip
 
 
 class SplitModel:

@@ -334,7 +334,7 @@ class Population:
         rollouts = imagine_rollouts(
             self.imagined_by, self.controller, mu, sigma, c.imagination_breadth,
             c.imagination_depth, eps, gens, draw=c.imagination_draw, scale=scale,
-            temperature=c.imagination_temperature,
+            temperature=c.imagination_temperature, actions=c.imagination_actions,
         )  # fmt: skip
         for i in imagining:
             transitions = rollouts[i]

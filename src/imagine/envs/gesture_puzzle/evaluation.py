@@ -362,7 +362,7 @@ def imagined_transitions(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
         [generator], draw=draw or c.imagination_draw, scale=scale,
-        temperature=c.imagination_temperature,
+        temperature=c.imagination_temperature, actions=c.imagination_actions,
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())
