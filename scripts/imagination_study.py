@@ -394,6 +394,10 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all"},
     ),
+    "augmented, as s77 (every action), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**TODAY, **HANDICAP, "n_imaginary_updates": 3, "imagination_actions": "all"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
