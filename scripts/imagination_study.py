@@ -398,6 +398,17 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, **HANDICAP, "n_imaginary_updates": 3, "imagination_actions": "all"},
     ),
+    # round 15: C's values diverged in one seed of s75 and of s77 (no target network, the
+    # paper's C, with four updates a step); a target network copied every 500 C updates
+    "augmented, as s77 (every action), C with a target network (copied every 500 updates)": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all",
+         "target_update_period": 500},
+    ),
+    "baseline, C with a target network (copied every 500 updates)": (
+        "baseline",
+        {"target_update_period": 500},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
