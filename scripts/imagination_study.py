@@ -402,8 +402,12 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # paper's C, with four updates a step); a target network copied every 500 C updates
     "augmented, as s77 (every action), C with a target network (copied every 500 updates)": (
         "augmented",
-        {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all",
-         "target_update_period": 500},
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_actions": "all",
+            "target_update_period": 500,
+        },
     ),
     "baseline, C with a target network (copied every 500 updates)": (
         "baseline",
