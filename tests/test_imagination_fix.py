@@ -12,6 +12,7 @@ from imagine.envs.gesture_puzzle.evaluation import imagined_accuracy
 from imagine.envs.gesture_puzzle.latent_classifier import LatentClassifier
 from imagine.envs.gesture_puzzle.vision_report import latent_activity
 from imagine.errors import ConfigError
+from imagine.learning.gate import gate_transitions
 from imagine.learning.imagination import imagine_rollouts
 from imagine.models.controller import Controller, PopulationController
 from imagine.models.world_model import PopulationWorldModel, WorldModel
@@ -584,9 +585,16 @@ def test_imagination_over_every_action_backs_up_each_start_through_m():
     assert out["z"].shape == (3 * 6, 4)
     assert bool((out["step"] == 0).all())  # one step each, not I_D
     for b in range(3):
-        mine = out["rollout"] == b
+        mine = out["rollout"] // 6 == b  # start b's six one-step rollouts
         assert sorted(out["action"][mine].tolist()) == list(range(6))
         assert bool((out["z"][mine] == mu[0, b]).all())
+    assert sorted(out["rollout"].tolist()) == list(range(3 * 6))  # each its own rollout
+    # so a stop gate judges each (start, action) alone, as the mask does
+    u = torch.rand(3 * 6, generator=torch.Generator().manual_seed(1))
+    tau = torch.tensor(0.5)
+    for rule in ("stop", "mask"):
+        keep = gate_transitions(rule, u, out["rollout"], out["step"], tau, None)
+        assert torch.equal(keep, u <= tau)
     expected = model.mode(out["z"].unsqueeze(0), out["action"].unsqueeze(0))[0]
     assert torch.allclose(out["next_z"], expected, atol=1e-6)
     with pytest.raises(ConfigError, match="imagination_actions must be one of policy, all"):

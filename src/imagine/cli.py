@@ -548,8 +548,9 @@ def evaluate_agent(
                       **calibration))  # fmt: skip
     from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
     where = "M_R" if from_memory else "new episodes"
+    shape = "I_B x A, one step" if agent.config.imagination_actions == "all" else "I_B x I_D"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "
-          f"states from {where}, I_B x I_D) right: "
+          f"states from {where}, {shape}) right: "
           "state {state:.1%} (first step {first_step:.1%}), reward "
           "{reward:.1%} (mean error of r {reward_error:.2f}), terminal {terminal:.1%}"
           .format(**imagined))  # fmt: skip

@@ -126,16 +126,18 @@ def every_action(
     z: torch.Tensor, unit: torch.Tensor, rollout: torch.Tensor, n_actions: int
 ) -> tuple[torch.Tensor, ...]:
     """Imagination over every action (``imagination_actions: all``): each start latent of
-    ``z`` (P, B, D) repeated once per action, with its unit of disagreement and rollout index,
-    and the actions 0..A-1 beside each: (P, B * A, ...). One step of each is a full backup of
+    ``z`` (P, B, D) repeated once per action, with its unit of disagreement, and the actions
+    0..A-1 beside each: (P, B * A, ...), each (start, action) a one-step rollout of its own
+    (index b * A + a; so a ``stop`` gate drops only the transitions over its threshold, as
+    ``mask`` does, not a start's whole backup). One step of each is a full backup of
     the start state through M (Sutton and Barto's expected update, with M's draw for the
     expectation): C learns the value of the actions its behaviour did not take there, which no
     replayed transition holds (van Hasselt et al. 2019: a model used only for transitions from
     observed states with the actions taken there adds little to replay)."""
     P, B, _ = z.shape
     action = torch.arange(n_actions, device=z.device).repeat(B).expand(P, B * n_actions)
-    return (z.repeat_interleave(n_actions, 1), unit.repeat_interleave(n_actions, 1),
-            rollout.repeat_interleave(n_actions, 1), action)  # fmt: skip
+    own = rollout.repeat_interleave(n_actions, 1) * n_actions + action
+    return z.repeat_interleave(n_actions, 1), unit.repeat_interleave(n_actions, 1), own, action
 
 
 class SplitModel:
