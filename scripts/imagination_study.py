@@ -413,6 +413,29 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "baseline",
         {"target_update_period": 500},
     ),
+    # issue 14 round 16 / issue 15: s77's every-action backups are 92-96% right, and its wrong
+    # ones are where (z, a) is far from every real start with action a (support AUROC
+    # 0.77-0.82 on s77 at 2000 episodes); keep only the supported ones (mask gate, one M)
+    "augmented, as s77 (every action), a mask gate on support (one M)": (
+        "augmented",
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_actions": "all",
+            "imagination_gate": "mask",
+            "imagination_uncertainty": "support",
+        },
+    ),
+    "augmented, as s81, a random mask of the gate's rate (the control)": (
+        "augmented",
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_actions": "all",
+            "imagination_gate": "random",
+            "imagination_uncertainty": "support",
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
