@@ -436,6 +436,18 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "imagination_uncertainty": "support",
         },
     ),
+    # round 16: imagination from episode 10 instead of 100, for the 250-500 cells where s70 is
+    # level with the baseline, with the adaptive ratio's trust check: no imagined C update
+    # while M's one-step modes on the newest real transitions are right less than 80%
+    "augmented, as s70 (the fast preset), imagining from episode 10, adaptive N_I": (
+        "augmented",
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_start": 10,
+            "imagination_adaptive": True,
+        },
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
