@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,55 @@ def test_a_second_study_on_a_running_folder_is_refused_and_a_dead_holders_lock_t
         f"{out.resolve()}: taking over the lock of process {holder.pid}, which died holding it"
     ]
     assert is_free(out)
+
+
+RUN_LONG = """import sys
+from imagine.study.experiments import Job, LocalRunner
+job = Job(sys.argv[1], "original", "baseline", 0, (100000,), preset="smoke", encoder="oracle")
+LocalRunner(1).run([job], lambda job: None, lambda job, error: None)
+"""
+
+
+def workers_of(pid: int) -> list[int]:
+    """The spawned worker processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            command = (stat.parent / "cmdline").read_bytes()
+        except OSError:  # ended meanwhile
+            continue
+        if int(fields[1]) == pid and b"spawn_main" in command:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl's parent-death signal")
+def test_a_studys_workers_die_with_it_so_none_writes_on_after_its_lock_is_gone(tmp_path):
+    """kill -9 of a study's own process (not its group) releases its lock; its worker must not
+    go on training in the folder a second study may now take over."""
+    study = subprocess.Popen([sys.executable, "-c", RUN_LONG, str(tmp_path / "runs" / "run")])
+    try:
+        deadline = time.monotonic() + 120
+        while not (workers := workers_of(study.pid)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert workers, "the study started no worker"
+        assert not is_free(tmp_path / "runs")  # the study holds its folder
+    finally:
+        study.kill()
+        study.wait()
+    deadline = time.monotonic() + 30
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(alive(pid) for pid in workers)
 
 
 def test_the_lock_is_released_when_its_holder_raises(tmp_path):

@@ -4,7 +4,10 @@ note the signal, finish the unit of work they are in, write a checkpoint and rai
 
 from __future__ import annotations
 
+import ctypes
+import os
 import signal
+import sys
 import threading
 from typing import Any
 
@@ -26,6 +29,31 @@ def note_signals_when_idle() -> None:
     process pool with it. A noted signal stops the next job before it trains."""
     for number in (signal.SIGINT, signal.SIGTERM):
         signal.signal(number, _note)
+
+
+def die_with_parent(parent: int) -> None:
+    """For a study's worker processes, at their start (Linux): SIGKILL this process when the
+    study's process ``parent`` dies. The study holds its folders' lock
+    (:func:`imagine.study.experiments.folder_lock`), which the kernel releases when it dies,
+    however it dies; a worker left running after a ``kill -9`` of the study would go on writing
+    run folders that a second study may then take over, two writers on one run. Killed with
+    its study, the worker leaves its runs at their last checkpoint (every file is written
+    atomically), from which the next study resumes them. Elsewhere a no-op."""
+    if not sys.platform.startswith("linux"):
+        return
+    pr_set_pdeathsig = 1
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0) != 0:
+        return  # not allowed here: keep the old behaviour rather than fail the study
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def start_study_worker(parent: int) -> None:
+    """The initializer of a study's worker processes: :func:`note_signals_when_idle` and
+    :func:`die_with_parent`."""
+    note_signals_when_idle()
+    die_with_parent(parent)
 
 
 class StopSignals:

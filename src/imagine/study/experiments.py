@@ -320,7 +320,8 @@ def _guarded(jobs: tuple[Job, ...], device: str = "cpu") -> dict[str, str | None
 
 @dataclass
 class LocalRunner:
-    """Processes on this machine (spawned, one torch thread each)."""
+    """Processes on this machine (spawned, one torch thread each, killed if the study's process
+    dies: :func:`imagine.stopping.die_with_parent`)."""
 
     workers: int = 2
     device: str = "cpu"
@@ -330,14 +331,15 @@ class LocalRunner:
         the running ones (each checkpoints and stops), and :class:`Interrupted` is raised once
         they have."""
         from imagine.errors import ImagineError, Interrupted
-        from imagine.stopping import StopSignals, note_signals_when_idle
+        from imagine.stopping import StopSignals, start_study_worker
 
         context = multiprocessing.get_context("spawn")
         with (
             job_folders_locked(jobs),
             StopSignals() as stop,
             ProcessPoolExecutor(
-                self.workers, mp_context=context, initializer=note_signals_when_idle
+                self.workers, mp_context=context, initializer=start_study_worker,
+                initargs=(os.getpid(),),
             ) as pool,
         ):
             pending = {}
