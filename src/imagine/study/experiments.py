@@ -338,7 +338,9 @@ class LocalRunner:
             job_folders_locked(jobs),
             StopSignals() as stop,
             ProcessPoolExecutor(
-                self.workers, mp_context=context, initializer=start_study_worker,
+                self.workers,
+                mp_context=context,
+                initializer=start_study_worker,
                 initargs=(os.getpid(),),
             ) as pool,
         ):
