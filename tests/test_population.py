@@ -168,6 +168,50 @@ def test_population_adam_is_torch_adam_per_agent_and_skips_agents():
     assert float(state["optim.0.step"]) == 3  # steps 0, 2, 4
 
 
+def test_population_adam_hands_its_slices_to_torchs_fused_adam_exactly():
+    # PopulationAdam.step calls torch's fused kernel directly; the same gradients stepped
+    # through torch.optim.Adam itself (each chosen agent's slices given their gradient) must
+    # give bitwise the same weights, moments and step counts, with agents sitting out
+    torch.manual_seed(0)
+    mlps = [nn.Sequential(nn.Linear(5, 24), nn.ReLU(), nn.Linear(24, 3)) for _ in range(4)]
+    direct = StackedMLP(mlps)
+    through_torch = StackedMLP(mlps)
+    ours = PopulationAdam(direct.parameters(), 4, lr=0.003)
+    theirs = PopulationAdam(through_torch.parameters(), 4, lr=0.003)
+    for step in range(6):
+        agents = [[0, 1, 2, 3], [1, 3], [0, 2, 3]][step % 3]
+        grads = [torch.randn_like(p) for p in direct.parameters()]
+        for p, q, g in zip(direct.parameters(), through_torch.parameters(), grads, strict=True):
+            p.grad, q.grad = g.clone(), g.clone()
+        ours.step(agents)
+        for i, (rows, slices) in enumerate(zip(theirs.rows, theirs.slices, strict=True)):
+            for (j, row), s in zip(rows, slices, strict=True):
+                s.grad = theirs.params[j].grad[row] if i in agents else None
+        theirs.optimizer.step()
+    for p, q in zip(direct.parameters(), through_torch.parameters(), strict=True):
+        assert torch.equal(p, q)
+    for agent in range(4):
+        a, b = ours.agent_state(agent, "o"), theirs.agent_state(agent, "o")
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert float(ours.agent_state(1, "o")["o.0.step"]) == 4  # steps 0, 1, 3, 4
+
+
+def test_dropout_masks_come_from_each_agents_generator_and_idle_agents_keep_every_unit():
+    from imagine.models.stacked import agent_dropout
+
+    x = torch.randn(3, 16, 40)
+    gens = [torch.Generator().manual_seed(s) for s in (7, 8, 9)]
+    out = agent_dropout(x, 0.25, [gens[0], None, gens[2]])
+    for i in (0, 2):  # agent i's draws alone: kept where uniform < 0.75, scaled by 1 / 0.75
+        keep = torch.rand(16, 40, generator=torch.Generator().manual_seed(7 + i)) < 0.75
+        assert torch.equal(out[i], x[i] * (keep * (1 / 0.75)))
+        assert not torch.equal(
+            gens[i].get_state(), torch.Generator().manual_seed(7 + i).get_state()
+        )
+    assert torch.equal(out[1], x[1])  # agent 1 drew nothing and kept every unit
+    assert torch.equal(gens[1].get_state(), torch.Generator().manual_seed(8).get_state())
+
+
 def test_a_run_resumes_only_on_the_device_type_it_was_trained_on(tmp_path):
     import json
 

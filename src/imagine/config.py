@@ -424,6 +424,8 @@ class AgentConfig:
     """Dropout in the r- and d-networks apart from the MDN's; None: ``dropout``."""
     reward_hidden: int = 512
     """Units in each of the r-network's 3 hidden layers (paper: 512)."""
+    terminal_hidden: int = 256
+    """Units in each of the d-network's 2 hidden layers (paper: 256)."""
     imagination_gate: str = "none"
     """Which imagined transitions reach M_I, by their uncertainty u (imagination_uncertainty)
     against
@@ -520,7 +522,8 @@ class AgentConfig:
                     "imaginary_memory", "model_batch", "imagination_breadth",
                     "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
                     "eval_episodes", "n_components", "model_ensemble", "controller_lr",
-                    "model_lr", "reward_hidden", "imagination_gate_scale",
+                    "model_lr", "reward_hidden", "terminal_hidden",
+                    "imagination_gate_scale",
                     "imagination_temperature",
                     "imagination_gate_window")  # fmt: skip
         for name in positive:

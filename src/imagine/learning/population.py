@@ -72,6 +72,7 @@ def new_networks(
     model = WorldModel(latent_dim, n_actions, n_components=config.n_components,
                        dropout=config.dropout,
                        reward_hidden=config.reward_hidden,
+                       terminal_hidden=config.terminal_hidden,
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,
                        ensemble=config.model_ensemble,

@@ -310,6 +310,7 @@ class WorldModel(nn.Module):
         reward_dropout: float | None = None,
         covariance: str = "diagonal",
         scales: str = "dropout",
+        terminal_hidden: int = 256,
     ) -> None:
         super().__init__()
         if scales not in SCALE_FITS:
@@ -323,7 +324,7 @@ class WorldModel(nn.Module):
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
-        self.terminal = TerminalNet(latent_dim, dropout=self.reward_dropout)
+        self.terminal = TerminalNet(latent_dim, hidden=terminal_hidden, dropout=self.reward_dropout)
         self.more_mdns = nn.ModuleList(mdn() for _ in range(ensemble - 1))
 
     @property
