@@ -615,3 +615,45 @@ def test_an_agent_imagining_every_action_fills_its_imaginary_memory_with_them():
     assert int(population.imaginary.size[0]) == 3 * 2 * 6
     newest = population.imaginary.newest(12)
     assert sorted(newest["action"].tolist()) == sorted(list(range(6)) * 2)
+
+
+def test_every_action_backups_switch_to_the_papers_rollouts_at_imagination_actions_until():
+    """imagination_actions_until: before it, every action's one-step backups behind the gate;
+    from it, the paper's policy rollouts, every transition kept; an agent on either side of
+    the switch imagines in a population what it imagines alone in that setting."""
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.population import Population
+
+    switching = agent_preset(
+        "smoke", encoder="oracle", method="augmented", imagination_start=0,
+        imagination_breadth=2, imagination_from="memory", imagination_actions="all",
+        imagination_actions_until=5, imagination_gate="mask", imagination_uncertainty="support",
+    )  # fmt: skip
+    papers = replace(switching, imagination_actions="policy", imagination_actions_until=0,
+                     imagination_gate="none", imagination_uncertainty="disagreement")  # fmt: skip
+    every = replace(switching, imagination_actions_until=0)
+
+    def imagine(configs, episodes):
+        population = Population(configs, OracleEncoder())
+        for _ in range(4):
+            population.episode = list(episodes)  # agent 0 past the switch, agent 1 before it
+            population.step()
+        return population
+
+    together = imagine([switching, replace(switching, seed=1)], [5, 0])
+    after, before = imagine([papers], [5]), imagine([replace(every, seed=1)], [0])
+    for agent, alone in ((0, after), (1, before)):
+        held = int(together.imaginary.size[agent])
+        assert held == int(alone.imaginary.size[0]) > 0
+        for key, value in together.imaginary.data.items():
+            assert torch.equal(value[agent, :held], alone.imaginary.data[key][0, :held]), key
+    assert together._episode[0].accepted is None  # nothing gated after the switch
+    assert together._episode[1].accepted is not None
+    held = int(together.imaginary.size[1])
+    assert held <= 4 * 2 * 6 and set(together.imaginary.data["action"][1, :held].tolist()) == set(
+        range(6)
+    )
+    with pytest.raises(ConfigError, match="imagination_actions_until switches"):
+        agent_preset("fast", imagination_actions_until=1000)
+    with pytest.raises(ConfigError, match="imagination_actions_until must be >= 0"):
+        agent_preset("fast", imagination_actions="all", imagination_actions_until=-1)

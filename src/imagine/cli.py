@@ -496,6 +496,7 @@ def evaluate_agent(
         model_accuracy,
     )
     from imagine.learning.agent import load_agent
+    from imagine.learning.imagination import actions_at
 
     agent = load_agent(run)
     n = episodes or agent.config.eval_episodes
@@ -548,7 +549,8 @@ def evaluate_agent(
                       **calibration))  # fmt: skip
     from_memory = agent.config.imagination_from == "memory" and agent.memory_starts is not None
     where = "M_R" if from_memory else "new episodes"
-    shape = "I_B x A, one step" if agent.config.imagination_actions == "all" else "I_B x I_D"
+    every = actions_at(agent.config, agent.episode) == "all"
+    shape = "I_B x A, one step" if every else "I_B x I_D"
     print(f"imagined transitions ({agent.config.imagination_draw}, as in training; 100 start "
           f"states from {where}, {shape}) right: "
           "state {state:.1%} (first step {first_step:.1%}), reward "

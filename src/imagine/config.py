@@ -349,6 +349,11 @@ class AgentConfig:
     to I_D steps; the paper) or all (one step of every action from each of the I_B starts,
     I_B x A transitions a step: M tells C what the actions its behaviour did not take would
     have done, which replay cannot; :func:`imagine.learning.imagination.every_action`)."""
+    imagination_actions_until: int = 0
+    """With imagination_actions all: the episode from which the agent imagines as the paper
+    does instead (policy rollouts, every imagined transition kept, no gate); 0: never. Every
+    action's backup fills in what C has not tried while its behaviour is young; once C's own
+    choices are what matter, its policy's rollouts refine them (README, issue 15)."""
     imagination_epsilon: float = -1.0
     """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
     paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
@@ -546,9 +551,15 @@ class AgentConfig:
                 f"agent.wrappers must be a list of module:Class names, got {self.wrappers!r}"
             )
         for name in ("model_updates", "reward_updates", "n_real_updates", "n_imaginary_updates",
-                     "target_update_period", "imagination_start", "seed", "steps"):  # fmt: skip
+                     "target_update_period", "imagination_start", "seed", "steps",
+                     "imagination_actions_until"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise ConfigError(f"agent.{name} must be >= 0, got {getattr(self, name)}")
+        if self.imagination_actions_until and self.imagination_actions != "all":
+            raise ConfigError(
+                "agent.imagination_actions_until switches imagination_actions all to the "
+                f"paper's policy rollouts; imagination_actions is {self.imagination_actions!r}"
+            )
         if self.real_in_place_of_imagined and self.method != "baseline":
             raise ConfigError("agent.real_in_place_of_imagined is a control for method baseline")
         if not 0.0 <= self.hand_switch_prob <= 1.0:

@@ -122,6 +122,14 @@ def imagine_rollouts(
     ]
 
 
+def actions_at(config, episode: int) -> str:
+    """What an agent's imagined rollouts do at ``episode`` (``imagination_actions``, until
+    ``imagination_actions_until`` switches every action's backups to the paper's policy
+    rollouts)."""
+    until = config.imagination_actions_until
+    return "policy" if until and episode >= until else config.imagination_actions
+
+
 def every_action(
     z: torch.Tensor, unit: torch.Tensor, rollout: torch.Tensor, n_actions: int
 ) -> tuple[torch.Tensor, ...]:

@@ -47,7 +47,12 @@ from imagine.learning.gate import (
     one_step_right,
     support_distance,
 )
-from imagine.learning.imagination import SplitModel, imagine_rollouts, posterior_scale
+from imagine.learning.imagination import (
+    SplitModel,
+    actions_at,
+    imagine_rollouts,
+    posterior_scale,
+)
 from imagine.learning.memory import ReplayMemory, imaginary_fields, real_fields
 from imagine.learning.value_expansion import expanded_target, steve_target
 from imagine.models.controller import Controller, PopulationController, epsilon
@@ -332,19 +337,28 @@ class Population:
             sigma = torch.zeros_like(sigma)
         if c.imagination_epsilon >= 0:
             eps = [c.imagination_epsilon] * self.size
-        rollouts = imagine_rollouts(
-            self.imagined_by, self.controller, mu, sigma, c.imagination_breadth,
-            c.imagination_depth, eps, gens, draw=c.imagination_draw, scale=scale,
-            temperature=c.imagination_temperature, actions=c.imagination_actions,
-        )  # fmt: skip
+        actions = {i: actions_at(c, self.episode[i]) for i in imagining}
+        rollouts: list[dict[str, torch.Tensor] | None] = [None] * self.size
+        for kind in sorted(set(actions.values())):  # one batch per kind of imagination
+            drawing = [g if actions.get(i) == kind else None for i, g in enumerate(gens)]
+            made = imagine_rollouts(
+                self.imagined_by, self.controller, mu, sigma, c.imagination_breadth,
+                c.imagination_depth, eps, drawing, draw=c.imagination_draw, scale=scale,
+                temperature=c.imagination_temperature, actions=kind,
+            )  # fmt: skip
+            rollouts = [m if actions.get(i) == kind else r
+                        for i, (m, r) in enumerate(zip(made, rollouts, strict=True))]  # fmt: skip
         for i in imagining:
             transitions = rollouts[i]
             disagreement = transitions.pop("disagreement")
             rollout, step = transitions.pop("rollout"), transitions.pop("step")
             totals = self._episode[i]
+            totals.imagined += len(disagreement)
+            if c.imagination_actions != actions[i]:  # switched: the paper's imagination, ungated
+                self.imaginary.add(i, **transitions)
+                continue
             if c.imagination_uncertainty == "support":
                 disagreement = self._support(i, transitions["z"], transitions["action"])
-            totals.imagined += len(disagreement)
             if c.model_ensemble > 1 or c.imagination_uncertainty == "support":
                 totals.add_disagreement(float(disagreement.sum()))
             if self.trust.on:

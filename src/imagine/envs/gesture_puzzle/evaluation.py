@@ -26,7 +26,7 @@ from imagine.intervals import mean_interval, wilson_interval
 from imagine.learning.agent import greedy_actions
 from imagine.learning.belief import BeliefTracker
 from imagine.learning.gate import gate_threshold, gate_transitions, support_distance
-from imagine.learning.imagination import imagine_rollouts, posterior_scale
+from imagine.learning.imagination import actions_at, imagine_rollouts, posterior_scale
 from imagine.models.controller import Controller, PopulationController
 from imagine.models.world_model import PopulationWorldModel, WorldModel
 
@@ -362,7 +362,7 @@ def imagined_transitions(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
         [generator], draw=draw or c.imagination_draw, scale=scale,
-        temperature=c.imagination_temperature, actions=c.imagination_actions,
+        temperature=c.imagination_temperature, actions=actions_at(c, agent.episode),
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())
