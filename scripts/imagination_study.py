@@ -37,7 +37,7 @@ SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
                "reward_dropout": None, "belief": "observation", "value_expansion": 0,
-               "n_imaginary_updates": 1}  # fmt: skip
+               "n_imaginary_updates": 1, "terminal_hidden": 256}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
 squared error for r and a residual M with 20% dropout, round 11 the belief and value expansion,
 round 14 N_I = 2): every setting starts from it, so a setting means what it meant when it ran."""
@@ -447,6 +447,27 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
             "imagination_start": 10,
             "imagination_adaptive": True,
         },
+    ),
+}
+SETTINGS |= {
+    # issue 15 / round 17: s81's gated every-action backups lead early (500-1000 episodes) and
+    # fall behind s70 late; both, one after the other: s81 until episode 1000, then s70
+    "augmented, as s81 until episode 1000, then as s70 (the paper's rollouts, ungated)": (
+        "augmented",
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_actions": "all",
+            "imagination_gate": "mask",
+            "imagination_uncertainty": "support",
+            "imagination_actions_until": 1000,
+        },
+    ),
+    # issue 18: the fast preset's d-network at 2 x 128 units instead of 2 x 256 (a third of a
+    # step's time), against s70 on the same V
+    "augmented, as s70 (the fast preset), the d-network 2 x 128": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3, "terminal_hidden": 128},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
