@@ -617,6 +617,34 @@ def curves_table(settings: list[str], out: Path, tasks: list[str], seeds: int,
     return curve_table(curve_summary(rows)).replace("| method |", "| setting |")
 
 
+def compare_table(pair: list[str], out: Path, tasks: list[str], seeds: int,
+                  budgets: tuple[int, ...], vae: str) -> str:  # fmt: skip
+    """Two settings cell by cell (task, budget): mean success of each and Welch's t-test (and
+    Mann-Whitney's U) p-value over their seeds, the test `make run`'s tables are held to
+    when a lever must leave them unchanged in distribution (issue 18)."""
+    from scipy.stats import mannwhitneyu, ttest_ind
+
+    rows = [load_evaluations(jobs_of(s, out, tasks, seeds, budgets, vae)) for s in pair]
+    a, b = (SHORT[s] for s in pair)
+    lines = [f"| task | episodes | {a} | {b} | Welch p | Mann-Whitney p |",
+             "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for t in tasks:
+        for budget in budgets:
+            x, y = (
+                np.array(
+                    [100 * r["success"] for r in got if r["task"] == t and r["budget"] == budget]
+                )
+                for got in rows
+            )
+            if not len(x) or not len(y):
+                continue
+            welch = ttest_ind(x, y, equal_var=False).pvalue if np.ptp(np.r_[x, y]) else 1.0
+            mw = mannwhitneyu(x, y).pvalue
+            means = " | ".join(f"{v.mean():.1f} ({v.std(ddof=1):.1f})" for v in (x, y))
+            lines.append(f"| {t} | {budget} | {means} | {welch:.2f} | {mw:.2f} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -633,6 +661,9 @@ def main() -> None:
     parser.add_argument("--budgets", default="1000,2000")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--table-only", action="store_true")
+    parser.add_argument(
+        "--compare", metavar="SA,SB", help="also test two settings cell by cell (Welch, U test)"
+    )
     args = parser.parse_args()
     by_short = {v: k for k, v in SHORT.items()}
     settings = [by_short[s] for s in args.settings.split(",")]
@@ -653,6 +684,10 @@ def main() -> None:
     if len(budgets) > 2:  # a learning curve
         print()
         print(curves_table(settings, args.out, tasks, args.seeds, budgets, args.vae))
+    if args.compare:
+        print()
+        pair = [by_short[s] for s in args.compare.split(",")]
+        print(compare_table(pair, args.out, tasks, args.seeds, budgets, args.vae))
 
 
 if __name__ == "__main__":
