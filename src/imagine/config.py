@@ -660,9 +660,6 @@ AGENT_PRESETS: dict[str, dict[str, Any]] = {
     # (s59 -> s70), its IQM interval above the baseline's at 1000-2000; on original the area under
     # the curve 69.5 -> 73.6 (N_I = 2: 67.4); with M handicapped it stays above the baseline at
     # every budget, where N_I = 2 fell 2 points below it at 2000 (README, issue 14 round 14).
-    # The d-network has 2 x 128 units instead of 2 x 256 (issue 18: it reads whether a state ends
-    # from an 8-D state, and with 8 updates a step it was a third of a step's time; make run's
-    # tables against the 2 x 256 ones: README, "Speed levers").
     # Everything else is the paper's.
     "fast": {
         "model_updates": 2,
@@ -670,7 +667,6 @@ AGENT_PRESETS: dict[str, dict[str, Any]] = {
         "dropout": 0.2,
         "model_residual": True,
         "reward_hidden": 128,
-        "terminal_hidden": 128,
         "imagination_draw": "mode",
         "imagination_start": 100,
         "imagination_from": "memory",
