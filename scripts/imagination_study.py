@@ -470,6 +470,26 @@ SETTINGS |= {
         {**TODAY, "n_imaginary_updates": 3, "terminal_hidden": 128},
     ),
 }
+SETTINGS |= {
+    # round 17: on this session's V one seed of five of s70 and of s84 diverges (C has no target
+    # network); a target network copied every 100 C updates (25 real steps) instead of s79's 500
+    "augmented, as s70 (the fast preset), C with a target network (copied every 100 updates)": (
+        "augmented",
+        {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100},
+    ),
+    "augmented, as s84, C with a target network (copied every 100 updates)": (
+        "augmented",
+        {
+            **TODAY,
+            "n_imaginary_updates": 3,
+            "imagination_actions": "all",
+            "imagination_gate": "mask",
+            "imagination_uncertainty": "support",
+            "imagination_actions_until": 1000,
+            "target_update_period": 100,
+        },
+    ),
+}
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
 
