@@ -449,19 +449,16 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         },
     ),
 }
+S84 = {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all",
+       "imagination_gate": "mask", "imagination_uncertainty": "support",
+       "imagination_actions_until": 1000}  # fmt: skip
+"""s84: s81's gated every-action backups until episode 1000, then s70's imagination."""
 SETTINGS |= {
     # issue 15 / round 17: s81's gated every-action backups lead early (500-1000 episodes) and
     # fall behind s70 late; both, one after the other: s81 until episode 1000, then s70
     "augmented, as s81 until episode 1000, then as s70 (the paper's rollouts, ungated)": (
         "augmented",
-        {
-            **TODAY,
-            "n_imaginary_updates": 3,
-            "imagination_actions": "all",
-            "imagination_gate": "mask",
-            "imagination_uncertainty": "support",
-            "imagination_actions_until": 1000,
-        },
+        S84,
     ),
     # issue 18: the fast preset's d-network at 2 x 128 units instead of 2 x 256 (a third of a
     # step's time), against s70 on the same V
@@ -479,15 +476,7 @@ SETTINGS |= {
     ),
     "augmented, as s84, C with a target network (copied every 100 updates)": (
         "augmented",
-        {
-            **TODAY,
-            "n_imaginary_updates": 3,
-            "imagination_actions": "all",
-            "imagination_gate": "mask",
-            "imagination_uncertainty": "support",
-            "imagination_actions_until": 1000,
-            "target_update_period": 100,
-        },
+        {**S84, "target_update_period": 100},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
