@@ -37,10 +37,12 @@ SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
                "reward_dropout": None, "belief": "observation", "value_expansion": 0,
-               "n_imaginary_updates": 1, "terminal_hidden": 256}  # fmt: skip
+               "n_imaginary_updates": 1, "terminal_hidden": 256,
+               "target_update_period": 0}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
 squared error for r and a residual M with 20% dropout, round 11 the belief and value expansion,
-round 14 N_I = 2): every setting starts from it, so a setting means what it meant when it ran."""
+round 14 N_I = 2, round 18 a target network every 100 C updates): every setting starts from
+it, so a setting means what it meant when it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 ROUND_6 = {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6}
 """s39: the `fast` preset's imagination after round 6."""
@@ -477,6 +479,14 @@ SETTINGS |= {
     "augmented, as s84, C with a target network (copied every 100 updates)": (
         "augmented",
         {**S84, "target_update_period": 100},
+    ),
+}
+SETTINGS |= {
+    # round 18: is the gain of s86 the target network's? The baseline with the same C (s80's
+    # period 500 slowed the baseline; 100 is what s86 takes)
+    "baseline, C with a target network (copied every 100 updates)": (
+        "baseline",
+        {"target_update_period": 100},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
