@@ -361,7 +361,7 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         "augmented",
         {**TODAY, "n_imaginary_updates": 2},
     ),
-    "augmented, as s59 (the fast preset), N_I = 3 imagined C updates per step": (
+    "augmented, as s59 (the fast preset of rounds 14-17), N_I = 3 imagined C updates per step": (
         "augmented",
         {**TODAY, "n_imaginary_updates": 3},
     ),
@@ -383,7 +383,7 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     # the control inside the augmented agent: M's belief and value expansion kept, imagination's
     # C updates replaced by as many on real batches (from the first step, N_R = 4)
-    "augmented, as s70 (the fast preset), 3 real C updates in place of the 3 imagined ones": (
+    "augmented, as s70, 3 real C updates in place of the 3 imagined ones": (
         "augmented",
         {**TODAY, "n_imaginary_updates": 0, "n_real_updates": 4},
     ),
@@ -392,7 +392,7 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
         {**TODAY, "n_imaginary_updates": 3, "n_real_updates": 4},
     ),
     # issue 14, round 15: what replay cannot give, the actions C's behaviour did not take
-    "augmented, as s70 (the fast preset), imagination over every action (one step each)": (
+    "augmented, as s70, imagination over every action (one step each)": (
         "augmented",
         {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all"},
     ),
@@ -441,7 +441,7 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     # round 16: imagination from episode 10 instead of 100, for the 250-500 cells where s70 is
     # level with the baseline, with the adaptive ratio's trust check: no imagined C update
     # while M's one-step modes on the newest real transitions are right less than 80%
-    "augmented, as s70 (the fast preset), imagining from episode 10, adaptive N_I": (
+    "augmented, as s70, imagining from episode 10, adaptive N_I": (
         "augmented",
         {
             **TODAY,
@@ -464,7 +464,7 @@ SETTINGS |= {
     ),
     # issue 18: the fast preset's d-network at 2 x 128 units instead of 2 x 256 (a third of a
     # step's time), against s70 on the same V
-    "augmented, as s70 (the fast preset), the d-network 2 x 128": (
+    "augmented, as s70, the d-network 2 x 128": (
         "augmented",
         {**TODAY, "n_imaginary_updates": 3, "terminal_hidden": 128},
     ),
@@ -472,7 +472,7 @@ SETTINGS |= {
 SETTINGS |= {
     # round 17: on this session's V one seed of five of s70 and of s84 diverges (C has no target
     # network); a target network copied every 100 C updates (25 real steps) instead of s79's 500
-    "augmented, as s70 (the fast preset), C with a target network (copied every 100 updates)": (
+    "augmented, as s70, C with a target network (copied every 100 updates): the fast preset": (
         "augmented",
         {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100},
     ),

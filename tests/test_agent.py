@@ -11,12 +11,14 @@ import pytest
 import torch
 import yaml
 
-from imagine.config import agent_preset, check_imagines
+from imagine.config import agent_preset, check_imagines, for_method
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 from imagine.envs.gesture_puzzle.evaluation import greedy_success, mean_interval, wilson_interval
 from imagine.envs.gesture_puzzle.rules import REWARD_GOAL
 from imagine.envs.gesture_puzzle.vector import GesturePuzzleVectorEnv
 from imagine.errors import CheckpointError, ConfigError
 from imagine.learning.agent import load_agent
+from imagine.learning.population import Population
 from imagine.learning.training import train
 from imagine.metrics import read_metrics
 
@@ -285,3 +287,27 @@ def test_an_agent_acts_on_camera_images(tmp_path):
     assert set(explored.tolist()) == set(range(6))
     with pytest.raises(ConfigError, match="pass macrostates"):
         agent.act(obs)
+
+
+def test_the_fast_augmented_c_has_a_target_network_and_the_baseline_the_papers_c():
+    """The fast preset's augmented C bootstraps from a target network copied every 100 updates
+    (issue 14, round 18); its baseline and the paper preset keep the paper's C, unless a study
+    gives the field to every method."""
+    augmented = agent_preset("fast", encoder="oracle")
+    baseline = agent_preset("fast", encoder="oracle", method="baseline")
+    assert (augmented.target_update_period, baseline.target_update_period) == (100, 0)
+    assert agent_preset("paper").target_update_period == 0
+    given = for_method({"target_update_period": 100}, "baseline")
+    assert agent_preset("fast", method="baseline", **given).target_update_period == 100
+    assert Population([baseline], OracleEncoder()).controller.target is None
+    population = Population([augmented], OracleEncoder())
+    c = population.controller
+    while int(c.updates[0]) < 100:
+        population.step()
+    assert int(c.updates[0]) == 100  # one real C update a step before I_start (episode 100)
+    target = [t[0].clone() for t in c.target.parameters()]
+    online = [q[0] for q in c.q.parameters()]
+    assert all(map(torch.equal, target, online))  # copied at its 100th update
+    population.step()
+    assert all(map(torch.equal, target, [t[0] for t in c.target.parameters()]))  # held
+    assert not all(map(torch.equal, target, [q[0] for q in c.q.parameters()]))  # C moved on

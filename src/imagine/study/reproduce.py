@@ -22,6 +22,7 @@ import yaml
 from imagine.checkpoint import atomic_write_text, read_json, write_json
 from imagine.config import (
     AGENT_PRESETS,
+    PRESET_AUGMENTED_ONLY,
     VISION_PRESETS,
     agent_preset,
     check_imagines,
@@ -189,7 +190,8 @@ def random_agents(
 
 def deviations(preset: str) -> list[str]:
     """The preset's departures from the paper's settings, one line each."""
-    lines = [f"- agent `{k}` = {v!r}" for k, v in AGENT_PRESETS[preset].items()
+    lines = [f"- agent `{k}` = {v!r}" + (" (augmented)" if k in PRESET_AUGMENTED_ONLY else "")
+             for k, v in AGENT_PRESETS[preset].items()
              if k != "episodes"]  # the budgets set the episodes  # fmt: skip
     lines += [f"- V `{k}` = {v!r}" for k, v in VISION_PRESETS[preset].items()]
     return lines or ["- none: every setting is the paper's"]
