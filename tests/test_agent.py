@@ -299,6 +299,8 @@ def test_the_fast_augmented_c_has_a_target_network_and_the_baseline_the_papers_c
     assert agent_preset("paper").target_update_period == 0
     given = for_method({"target_update_period": 100}, "baseline")
     assert agent_preset("fast", method="baseline", **given).target_update_period == 100
+    control = agent_preset("fast", method="baseline", real_in_place_of_imagined=True)
+    assert (control.target_update_period, control.value_expansion) == (100, 0)  # C, not M
     assert Population([baseline], OracleEncoder()).controller.target is None
     population = Population([augmented], OracleEncoder())
     c = population.controller

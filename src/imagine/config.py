@@ -367,7 +367,8 @@ class AgentConfig:
     controller_lr: float = 1e-3
     """C's Adam learning rate."""
     target_update_period: int = 0
-    """Updates between target-network copies; 0: no target network (the paper)."""
+    """Updates between target-network copies; 0: no target network (the paper). The `fast`
+    preset's augmented agent: 100 (issue 14, round 18)."""
     double_dqn: bool = False
     """Double DQN targets (an option; the paper uses plain DQN)."""
     real_batch: int = 64
@@ -707,7 +708,8 @@ is an error and the belief's fields do nothing."""
 PRESET_AUGMENTED_ONLY = (*AUGMENTED_ONLY, "target_update_period")
 """A preset's values that its baseline does not take: the augmented agent's own settings and
 the `fast` augmented agent's target network (the baseline keeps the paper's C, which learns
-faster without one). Given explicitly (``--set``), they apply to the baseline too."""
+faster without one; imagination's control, ``real_in_place_of_imagined``, takes the augmented
+agent's C). Given explicitly (``--set``), they apply to the baseline too."""
 
 
 def for_method(overrides: dict[str, Any], method: str) -> dict[str, Any]:
@@ -723,7 +725,9 @@ def agent_preset(preset: str = "fast", **overrides: Any) -> AgentConfig:
     """The Algorithm 1 config of a preset, with ``overrides`` applied (validated)."""
     values = {**AGENT_PRESETS[check_preset(preset)], **overrides}
     if values.get("method", AgentConfig.method) != "augmented":
-        values = {
-            k: v for k, v in values.items() if k not in PRESET_AUGMENTED_ONLY or k in overrides
-        }
+        # imagination's control (real updates in place of imagined ones) keeps the augmented
+        # agent's C, so that the two differ in where their extra batches come from alone
+        control = values.get("real_in_place_of_imagined", False)
+        drop = AUGMENTED_ONLY if control else PRESET_AUGMENTED_ONLY
+        values = {k: v for k, v in values.items() if k not in drop or k in overrides}
     return from_dict(AgentConfig, values, "agent")
