@@ -15,10 +15,15 @@ does not depend on them).
 
     .venv/bin/python benchmarks/population_speed.py [--threads 1] [--steps 20]
         [--presets fast,paper] [--dtypes float32,bfloat16] [--set model_ensemble=5 ...]
-        [--device cuda]
+        [--compare model_ensemble=5 ...] [--device cuda]
 
 ``--set KEY=VALUE`` changes a setting of every agent (as `imagine train --set` does), e.g. the
-ensemble size K of M's MDN. ``--device cuda`` times the populations on a GPU (the peak is then the
+ensemble size K of M's MDN. ``--compare KEY=VALUE`` (repeatable) measures every row twice in the
+same run, the settings of ``--set`` alone (the reference) and with these on top, one right after
+the other, and prints the second's step time as a multiple of the reference's: e.g. the cost of
+an ensemble, ``--compare model_ensemble=5`` (issue 15 asks at most 2x).
+
+``--device cuda`` times the populations on a GPU (the peak is then the
 GPU's float32 matrix product, TF32 off, and with TF32 on, timed in the same run); the V line
 stays on the CPU.
 """
@@ -161,6 +166,8 @@ def main() -> None:
     parser.add_argument("--presets", default="fast,paper")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a setting of every agent, e.g. model_ensemble=5")  # fmt: skip
+    parser.add_argument("--compare", action="append", default=[], metavar="KEY=VALUE",
+                        help="measure every row also with this on top, as a multiple")  # fmt: skip
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     parser.add_argument("--dtypes", default="float32,bfloat16",
                         help="the products' dtypes to measure every row with")  # fmt: skip
@@ -183,22 +190,32 @@ def main() -> None:
         print(f"peak: 2048x2048 matmul, {args.threads} thread(s): {rates}")
     if overrides:
         print("settings: " + ", ".join(f"{k}={v}" for k, v in overrides.items()))
+    variants = [("reference", {})]
+    if args.compare:
+        variants.append(("+ " + ", ".join(args.compare), parse_assignments(args.compare)))
+    extra = " settings | step / reference |" if args.compare else ""
     print(
         "| preset | agents | products | agent steps/s | ms per lockstep step | M update ms | "
-        "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |"
+        "M share of step | M at % of peak | step at % of peak | GFLOP per agent step |" + extra
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|" + "---|---|" * bool(args.compare))
     for preset in args.presets.split(","):
         for agents in (int(a) for a in args.agents.split(",")):
             steps = args.steps if preset == "fast" else 2
             for dtype in dtypes:
-                settings = {**overrides, "matmul_dtype": dtype}
-                m = measure(preset, agents, steps, peaks[dtype], settings, args.device)
-                cells = [preset, str(agents), dtype, f"{m['steps_per_s']:.1f}",
-                         f"{m['step_ms']:.1f}", f"{m['m_update_ms']:.1f}",
-                         f"{100 * m['m_share']:.0f}%", f"{100 * m['m_peak']:.0f}%",
-                         f"{100 * m['step_peak']:.0f}%", f"{m['gflop_per_step']:.2f}"]  # fmt: skip
-                print("| " + " | ".join(cells) + " |", flush=True)
+                reference_ms = None
+                for label, more in variants:
+                    settings = {**overrides, **more, "matmul_dtype": dtype}
+                    m = measure(preset, agents, steps, peaks[dtype], settings, args.device)
+                    reference_ms = reference_ms or m["step_ms"]
+                    cells = [preset, str(agents), dtype, f"{m['steps_per_s']:.1f}",
+                             f"{m['step_ms']:.1f}", f"{m['m_update_ms']:.1f}",
+                             f"{100 * m['m_share']:.0f}%", f"{100 * m['m_peak']:.0f}%",
+                             f"{100 * m['step_peak']:.0f}%",
+                             f"{m['gflop_per_step']:.2f}"]  # fmt: skip
+                    if args.compare:
+                        cells += [label, f"{m['step_ms'] / reference_ms:.2f}x"]
+                    print("| " + " | ".join(cells) + " |", flush=True)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(f"peak memory of this process: {rss:.2f} GiB")
     if device.type == "cuda":

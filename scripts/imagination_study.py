@@ -489,6 +489,25 @@ SETTINGS |= {
         {"target_update_period": 100},
     ),
 }
+S86 = {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100}
+"""s86, the `fast` preset's augmented agent since round 18."""
+SETTINGS |= {
+    # issue 15 on round 18's fast agent (s86): does a handicapped M hurt it, and does trust
+    # (K = 5, the mask gate on the members' disagreement, the adaptive ratio) keep it level
+    # with the baseline, where a random mask of the gate's rate does not?
+    "augmented, as s86 (the fast preset), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**S86, **HANDICAP},
+    ),
+    "augmented, as s89, K = 5, mask gate on disagreement, adaptive N_I": (
+        "augmented",
+        {**S86, **HANDICAP, **TRUST},
+    ),
+    "augmented, as s90, a random mask of the gate's rate (the control)": (
+        "augmented",
+        {**S86, **HANDICAP, **TRUST, "imagination_gate": "random"},
+    ),
+}
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
 
