@@ -507,6 +507,11 @@ SETTINGS |= {
         "augmented",
         {**S86, **HANDICAP, **TRUST, "imagination_gate": "random"},
     ),
+    # issue 15's "it helps": the same trust on the fast agent's own M (not handicapped)
+    "augmented, as s86 (the fast preset), K = 5, mask gate on disagreement, adaptive N_I": (
+        "augmented",
+        {**S86, **TRUST},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
