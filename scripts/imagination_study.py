@@ -512,6 +512,11 @@ SETTINGS |= {
         "augmented",
         {**S86, **TRUST},
     ),
+    # s92 is behind s86 on `original` early: the adaptive ratio's late start, or the ensemble?
+    "augmented, as s92 without the adaptive ratio (imagined updates from episode 100)": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
