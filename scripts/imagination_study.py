@@ -455,6 +455,8 @@ S84 = {**TODAY, "n_imaginary_updates": 3, "imagination_actions": "all",
        "imagination_gate": "mask", "imagination_uncertainty": "support",
        "imagination_actions_until": 1000}  # fmt: skip
 """s84: s81's gated every-action backups until episode 1000, then s70's imagination."""
+S86 = {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100}
+"""s86, the `fast` preset's augmented agent since round 18."""
 SETTINGS |= {
     # issue 15 / round 17: s81's gated every-action backups lead early (500-1000 episodes) and
     # fall behind s70 late; both, one after the other: s81 until episode 1000, then s70
@@ -474,7 +476,7 @@ SETTINGS |= {
     # network); a target network copied every 100 C updates (25 real steps) instead of s79's 500
     "augmented, as s70, C with a target network (copied every 100 updates): the fast preset": (
         "augmented",
-        {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100},
+        S86,
     ),
     "augmented, as s84, C with a target network (copied every 100 updates)": (
         "augmented",
@@ -489,8 +491,6 @@ SETTINGS |= {
         {"target_update_period": 100},
     ),
 }
-S86 = {**TODAY, "n_imaginary_updates": 3, "target_update_period": 100}
-"""s86, the `fast` preset's augmented agent since round 18."""
 SETTINGS |= {
     # issue 15 on round 18's fast agent (s86): does a handicapped M hurt it, and does trust
     # (K = 5, the mask gate on the members' disagreement, the adaptive ratio) keep it level
