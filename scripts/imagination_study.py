@@ -517,6 +517,12 @@ SETTINGS |= {
         "augmented",
         {**S86, **TRUST, "imagination_adaptive": False},
     ),
+    # issue 15's two gates: MACURA's stop (a rollout ends at its first u > tau) against s93's
+    # M2AC mask (each u > tau dropped)
+    "augmented, as s93 with the stop gate": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, "imagination_gate": "stop"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
