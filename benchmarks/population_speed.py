@@ -21,7 +21,9 @@ does not depend on them).
 ensemble size K of M's MDN. ``--compare KEY=VALUE`` (repeatable) measures every row twice in the
 same run, the settings of ``--set`` alone (the reference) and with these on top, one right after
 the other, and prints the second's step time as a multiple of the reference's: e.g. the cost of
-an ensemble, ``--compare model_ensemble=5`` (issue 15 asks at most 2x).
+the `fast` augmented agent's ensemble of five (issue 15 asks at most 2x), ``--set
+model_ensemble=1 --set imagination_gate=none --compare model_ensemble=5 --compare
+imagination_gate=mask``.
 
 ``--device cuda`` times the populations on a GPU (the peak is then the
 GPU's float32 matrix product, TF32 off, and with TF32 on, timed in the same run); the V line

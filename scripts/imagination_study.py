@@ -38,11 +38,13 @@ FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward
                "reward_loss": "logcosh", "model_residual": False, "dropout": 0.0,
                "reward_dropout": None, "belief": "observation", "value_expansion": 0,
                "n_imaginary_updates": 1, "terminal_hidden": 256,
-               "target_update_period": 0}  # fmt: skip
+               "target_update_period": 0, "model_ensemble": 1,
+               "imagination_gate": "none"}  # fmt: skip
 """The `fast` preset's imagination before round 6 made Dyna's its default (and round 7 the
 squared error for r and a residual M with 20% dropout, round 11 the belief and value expansion,
-round 14 N_I = 2, round 18 a target network every 100 C updates): every setting starts from
-it, so a setting means what it meant when it ran."""
+round 14 N_I = 2, round 18 a target network every 100 C updates, round 19 an ensemble of five
+Ms behind the mask gate): every setting starts from it, so a setting means what it meant when
+it ran."""
 DYNA_100 = {"imagination_start": 100, "imagination_from": "memory"}
 ROUND_6 = {**DYNA_100, "imagination_draw": "mode", "reward_updates": 6}
 """s39: the `fast` preset's imagination after round 6."""

@@ -289,6 +289,19 @@ def test_an_agent_acts_on_camera_images(tmp_path):
         agent.act(obs)
 
 
+def test_the_fast_augmented_agent_trusts_an_ensemble_and_the_baseline_has_none():
+    """The fast preset's augmented M is an ensemble of 5 behind the mask gate (issue 15, round
+    19); its baseline, imagination's control and the paper preset have one M and no gate."""
+    fast = agent_preset("fast")
+    assert (fast.model_ensemble, fast.imagination_gate, fast.imagination_adaptive) == (
+        5, "mask", False)  # fmt: skip
+    control = agent_preset("fast", method="baseline", real_in_place_of_imagined=True)
+    for config in (agent_preset("fast", method="baseline"), agent_preset("paper"), control):
+        assert (config.model_ensemble, config.imagination_gate) == (1, "none")
+    given = agent_preset("fast", method="baseline", baseline_trains_m=True, model_ensemble=3)
+    assert given.model_ensemble == 3  # given explicitly, the baseline's M takes it
+
+
 def test_the_fast_augmented_c_has_a_target_network_and_the_baseline_the_papers_c():
     """The fast preset's augmented C bootstraps from a target network copied every 100 updates
     (issue 14, round 18); its baseline and the paper preset keep the paper's C, unless a study

@@ -46,7 +46,7 @@ def test_bad_ensemble_sizes_are_refused_in_one_line():
     with pytest.raises(ConfigError) as error:
         agent_preset("fast", model_ensemble=0)
     assert str(error.value) == "agent.model_ensemble must be positive, got 0"
-    assert agent_preset("fast").model_ensemble == 1  # the paper's single MDN by default
+    assert agent_preset("paper").model_ensemble == 1  # the paper's single MDN
 
 
 def test_one_member_is_the_m_it_always_was_and_member_0_starts_as_it():

@@ -147,9 +147,9 @@ def test_bad_gate_settings_are_refused_in_one_line():
     ]  # fmt: skip
     for key, value, message in cases:
         with pytest.raises(ConfigError) as error:
-            agent_preset("fast", **{key: value})
+            agent_preset("paper", **{key: value})
         assert str(error.value) == message
-    config = agent_preset("fast")  # today's agent by default
+    config = agent_preset("paper")  # the paper's plain imagination
     assert (config.imagination_gate, config.imagination_adaptive) == ("none", False)
 
 
