@@ -525,6 +525,26 @@ SETTINGS |= {
         "augmented",
         {**S86, **TRUST, "imagination_adaptive": False, "imagination_gate": "stop"},
     ),
+    # does s93's gate matter, or only its ensemble? s93 without any gate, and s93 with a
+    # random mask of the gate's rate (the issue's control)
+    "augmented, as s93 without the gate (K = 5 only)": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, "imagination_gate": "none"},
+    ),
+    "augmented, as s93 with a random mask of the gate's rate (the control)": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, "imagination_gate": "random"},
+    ),
+    # issue 15's "never hurts" with today's default trust (s93's: K = 5, the mask gate, no
+    # adaptive ratio) on a handicapped M, and its random-mask control
+    "augmented, as s93 (the fast preset), M handicapped (1 x 32 updates per step)": (
+        "augmented",
+        {**S86, **HANDICAP, **TRUST, "imagination_adaptive": False},
+    ),
+    "augmented, as s97, a random mask of the gate's rate (the control)": (
+        "augmented",
+        {**S86, **HANDICAP, **TRUST, "imagination_adaptive": False, "imagination_gate": "random"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
