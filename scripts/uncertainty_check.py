@@ -8,7 +8,12 @@ the wrong ones (1: every wrong one above every right one; 0.5: chance):
 - disagreement: the members' mean pairwise distance between modes (K > 1; issue 15's gate);
 - support: the distance from the transition's (z, a) to the nearest real transition of the
   agent's own M_R with the same action (how far M extrapolates from its data);
-- ambiguity: 1 - the weight of M's heaviest component at (z, a) (first member).
+- ambiguity: 1 - the weight of M's heaviest component at (z, a) (first member);
+- depth: the transition's step in its rollout (0 for first steps: deeper ones start from
+  imagined latents);
+- lookup: the distance from M's next state to what the nearest real transition with the same
+  action says it is (that transition's next mu, moved by z minus its start), a second,
+  non-parametric model's disagreement with M.
 
     .venv/bin/python scripts/uncertainty_check.py runs/study15/s22/hard-0 runs/study15/s24/hard-0
 """
@@ -23,6 +28,20 @@ from imagine.checkpoint import load_tensors
 from imagine.envs.gesture_puzzle.evaluation import auroc, imagined_transitions
 from imagine.learning.agent import load_agent
 from imagine.learning.gate import support_distance
+
+
+def lookup_distance(
+    r: dict[str, torch.Tensor],
+    memory_mu: torch.Tensor,
+    memory_action: torch.Tensor,
+    memory_next: torch.Tensor,
+) -> torch.Tensor:
+    """Per imagined transition, ||z' - (next_mu_j + z - mu_j)|| for the real transition j with
+    the same action whose start mu_j is nearest z."""
+    distance = torch.cdist(r["z"], memory_mu)
+    distance = distance.masked_fill(r["action"].unsqueeze(1) != memory_action.unsqueeze(0), 1e9)
+    j = distance.argmin(-1)
+    return (r["next_z"] - (memory_next[j] + r["z"] - memory_mu[j])).norm(dim=-1)
 
 
 @torch.no_grad()
@@ -48,6 +67,8 @@ def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
         ),
         "support_next": auroc(torch.cdist(r["next_z"], memory_next).min(-1).values.numpy(), wrong),
         "ambiguity": auroc((1 - mixture.log_pi.exp().max(-1).values).numpy(), wrong),
+        "depth": auroc(r["step"].float().numpy(), wrong),
+        "lookup": auroc(lookup_distance(r, memory_mu, memory_action, memory_next).numpy(), wrong),
     }
     if c.model_ensemble > 1:
         out["disagreement"] = auroc(r["disagreement"].numpy(), wrong)
@@ -57,10 +78,11 @@ def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+")
+    parser.add_argument("--starts", type=int, default=100, help="real start states per agent")
     args = parser.parse_args()
     torch.set_num_threads(1)
     for run in args.runs:
-        result = check(run)
+        result = check(run, args.starts)
         print(run, ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
                              for k, v in result.items()))  # fmt: skip
 
