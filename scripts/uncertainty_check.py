@@ -15,6 +15,9 @@ the wrong ones (1: every wrong one above every right one; 0.5: chance):
   action says it is (that transition's next mu, moved by z minus its start), a second,
   non-parametric model's disagreement with M.
 
+And where the wrong ones are: their share on first steps and on later ones, and the share of
+them whose arrows are right and only the hand is wrong.
+
     .venv/bin/python scripts/uncertainty_check.py runs/study15/s22/hard-0 runs/study15/s24/hard-0
 """
 
@@ -53,15 +56,21 @@ def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
     memory_mu = tensors["real.mu"][:held]
     memory_action = tensors["real.action"][: len(memory_mu)]
     memory_next = tensors["real.next_mu"][: len(memory_mu)]
-    r, _, right = imagined_transitions(agent, starts, torch.Generator().manual_seed(seed),
-                                       draw="mode")  # fmt: skip
+    r, truth, right = imagined_transitions(agent, starts, torch.Generator().manual_seed(seed),
+                                           draw="mode")  # fmt: skip
     wrong = ~right
+    shown = agent.encoder.classify(r["next_z"]).numpy()
+    hand_only = (shown[..., :3] == truth[..., :3]).all(-1) & (shown[..., 3] != truth[..., 3])
+    first = (r["step"] == 0).numpy()
     mdn = agent.model.mdn if hasattr(agent.model, "mdn") else agent.model
     mixture = mdn(r["z"], r["action"])
     out = {
         "episode": agent.episode,
         "transitions": len(wrong),
         "wrong": float(wrong.mean()),
+        "wrong_first_step": float(wrong[first].mean()),
+        "wrong_later_steps": float(wrong[~first].mean()) if (~first).any() else float("nan"),
+        "wrong_hand_only": float(hand_only[wrong].mean()) if wrong.any() else float("nan"),
         "support": auroc(
             support_distance(r["z"], r["action"], memory_mu, memory_action).numpy(), wrong
         ),
