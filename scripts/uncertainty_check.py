@@ -13,7 +13,11 @@ the wrong ones (1: every wrong one above every right one; 0.5: chance):
   imagined latents);
 - lookup: the distance from M's next state to what the nearest real transition with the same
   action says it is (that transition's next mu, moved by z minus its start), a second,
-  non-parametric model's disagreement with M.
+  non-parametric model's disagreement with M;
+- cycle: how far V moves M's next state when it draws it and sees it again,
+  ||z' - E(D(z'))|| with D V's decoder and E its encoder's mean: a latent off the images V
+  knows (a drifted hand) comes back elsewhere. ``cycle_read``: whether V's classifier reads
+  another macrostate from E(D(z')) than from z' (ties count a half).
 
 And where the wrong ones are: their share on first steps and on later ones, and the share of
 them whose arrows are right and only the hand is wrong.
@@ -48,6 +52,19 @@ def lookup_distance(
 
 
 @torch.no_grad()
+def cycled(encoder, z: torch.Tensor, batch: int = 1000) -> torch.Tensor | None:
+    """E(D(z)) for latents z in the agent's space (None for an encoder without V): V's decoder
+    draws each latent, V's encoder reads the drawing back (its mean)."""
+    inner = getattr(encoder, "inner", encoder)
+    vae = getattr(inner, "vae", None)
+    if vae is None:
+        return None
+    full = encoder.unproject(z) if inner is not encoder else z
+    back = torch.cat([vae.encode(vae.decode(part))[0] for part in full.split(batch)])
+    return encoder.project(back) if inner is not encoder else back
+
+
+@torch.no_grad()
 def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
     agent = load_agent(run)
     c = agent.config
@@ -79,6 +96,12 @@ def check(run: str, starts: int = 100, seed: int = 0) -> dict[str, float]:
         "depth": auroc(r["step"].float().numpy(), wrong),
         "lookup": auroc(lookup_distance(r, memory_mu, memory_action, memory_next).numpy(), wrong),
     }
+    back = cycled(agent.encoder, r["next_z"])
+    if back is not None:
+        out["cycle"] = auroc((r["next_z"] - back).norm(dim=-1).numpy(), wrong)
+        read_back = agent.encoder.classify(back).numpy()
+        out["cycle_read"] = auroc((read_back != shown).any(-1).astype(float), wrong)
+        out["cycle_wrong"] = float(1 - (read_back == truth).all(-1).mean())
     if c.model_ensemble > 1:
         out["disagreement"] = auroc(r["disagreement"].numpy(), wrong)
     return out

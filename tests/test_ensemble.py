@@ -270,3 +270,18 @@ def test_disagreement_from_m_r_starts_is_in_units_of_v_posterior_scale(ensemble_
     out = imagined_accuracy(agent, starts=12)
     assert torch.allclose(seen[0], torch.full_like(seen[0], 0.05))
     assert 0 < out["gate_threshold"] < 1e3
+
+
+def test_an_ensembles_prediction_is_its_members_mean_mode_and_one_member_is_its_mdn():
+    """M's point prediction (accuracy, generalization, planning): one MDN's most likely next
+    state for K = 1, bitwise; the mean of the K members' modes for an ensemble, which differs
+    from any one member's when the members differ."""
+    torch.manual_seed(0)
+    z, a = torch.randn(7, 3), torch.randint(6, (7,))
+    single = WorldModel(3, ensemble=1).eval()
+    assert torch.equal(single.most_likely(z, a), single.mdn.most_likely(z, a))
+    ensemble = WorldModel(3, ensemble=3).eval()
+    modes = torch.stack([mdn.most_likely(z, a) for mdn in ensemble.members])
+    mean = ensemble.most_likely(z, a)
+    assert torch.allclose(mean, modes.mean(0))
+    assert not torch.allclose(mean, modes[0])

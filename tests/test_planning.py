@@ -54,7 +54,8 @@ def test_the_plan_judge_knows_optimal_longer_and_failed_plans(task):
 def test_plan_and_generalize_commands(tmp_path):
     run = tmp_path / "run"
     done = subprocess.run([IMAGINE, "train", str(run), "--preset", "smoke", "--oracle",
-                           "--episodes", "30", "--set", "imagination_start=10"],
+                           "--episodes", "30", "--set", "imagination_start=10",
+                           "--set", "model_ensemble=2"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
     done = subprocess.run([IMAGINE, "plan", str(run), "--trials", "5"],
@@ -70,6 +71,8 @@ def test_plan_and_generalize_commands(tmp_path):
     result = json.loads((run / "generalization.json").read_text())
     assert result["trials"] == 7 and result["all_terminal_transitions"] == 138 * 6
     assert 0.0 <= result["all_terminal_accuracy"] <= 1.0
+    # M is an ensemble: the members' mean mode above, its first member alone beside it
+    assert 0.0 <= result["all_terminal_accuracy_first_member"] <= 1.0
 
 
 @pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a GPU")

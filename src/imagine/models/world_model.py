@@ -332,6 +332,17 @@ class WorldModel(nn.Module):
         """The K MDNs, ``mdn`` first."""
         return [self.mdn, *self.more_mdns]
 
+    def most_likely(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """M's point prediction of the next state, what the accuracy, generalization and
+        planning tests read: the MDN's most likely next state (:meth:`MDN.most_likely`); with
+        an ensemble, the mean of the members' most likely next states, (1 / K) sum_k mode_k
+        (the ensemble's prediction, as PETS and MBPO average their members; README, issue 15:
+        it names the right macrostate more often than any one member, most of all from
+        states M never trained on)."""
+        if not self.more_mdns:
+            return self.mdn.most_likely(z, action)
+        return torch.stack([mdn.most_likely(z, action) for mdn in self.members]).mean(0)
+
 
 def mixture_mode(m: Mixture) -> torch.Tensor:
     """The mean of each mixture's heaviest component (..., D): its most likely point."""

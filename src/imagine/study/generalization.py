@@ -26,14 +26,15 @@ def predict_next(agent, images: np.ndarray, states: np.ndarray, actions: np.ndar
     mu, _ = agent.encoder.encode(images, states)
     device = next(agent.model.parameters()).device  # V may sit on a GPU, M on the CPU
     agent.model.eval()
-    next_z = agent.model.mdn.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
+    next_z = agent.model.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
     agent.model.train()
     return next_z, agent.encoder.classify(next_z).numpy()
 
 
 def generalization(agent, trials: int = 20, seed: int = 0) -> dict[str, Any]:
     """Accuracy of M's next state from terminal states: ``trials`` random (state, action)
-    pairs as the paper, and all terminal states x 6 actions."""
+    pairs as the paper, and all terminal states x 6 actions (with an ensemble, of the
+    members' mean mode, and of its first member alone as well)."""
     from imagine.envs.gesture_puzzle import make_composer
 
     task = agent.config.task
@@ -46,15 +47,33 @@ def generalization(agent, trials: int = 20, seed: int = 0) -> dict[str, Any]:
     right = (read == apply_actions(picked, actions)).all(-1)
     every = np.repeat(terminal, N_ACTIONS, axis=0)
     every_actions = np.tile(np.arange(N_ACTIONS), len(terminal))
-    _, read_all = predict_next(agent, composer.sample(rng, every), every, every_actions)
+    images_all = composer.sample(rng, every)
+    _, read_all = predict_next(agent, images_all, every, every_actions)
     right_all = (read_all == apply_actions(every, every_actions)).all(-1)
-    return {
+    result = {
         "trials": trials,
         "trials_right": int(right.sum()),
         "trial_accuracy": float(right.mean()),
         "all_terminal_transitions": len(every),
         "all_terminal_accuracy": float(right_all.mean()),
     }
+    if len(agent.model.members) > 1:  # the ensemble's mean mode above; its first member alone
+        mu, _ = agent.encoder.encode(images_all, every)
+        first = agent.encoder.classify(first_member_mode(agent, mu, every_actions)).numpy()
+        result["all_terminal_accuracy_first_member"] = float(
+            (first == apply_actions(every, every_actions)).all(-1).mean()
+        )
+    return result
+
+
+@torch.no_grad()
+def first_member_mode(agent, mu: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
+    """The most likely next state of an ensemble's first MDN alone."""
+    device = next(agent.model.parameters()).device
+    agent.model.eval()
+    next_z = agent.model.mdn.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
+    agent.model.train()
+    return next_z
 
 
 def generalization_png(agent, out: Path, seed: int = 0) -> Path | None:

@@ -73,7 +73,7 @@ def imagine_plan(agent, mu: torch.Tensor, depth: int = 10) -> tuple[list[int], t
     z, actions, latents = mu[None], [], [mu]
     for _ in range(depth):
         action = controller(z).argmax(-1)
-        z = model.mdn.most_likely(z, action)
+        z = model.most_likely(z, action)
         actions.append(int(action))
         latents.append(z[0])
         if bool(model.terminal.is_terminal(z)[0]):

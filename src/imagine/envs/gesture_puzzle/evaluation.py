@@ -140,7 +140,8 @@ def model_accuracy(
     - ``reward`` / ``terminal``: over those same transitions, how often r (rounded to the nearest
       of +50, -5, -1) and d are right at the true next state's latent.
 
-    With an ensemble of MDNs (``model_ensemble`` > 1) these judge its first member.
+    With an ensemble of MDNs (``model_ensemble`` > 1) the most likely next state is the
+    members' mean mode (:meth:`WorldModel.most_likely`); samples come from its first member.
     """
     states = np.repeat(all_macrostates(), N_ACTIONS, axis=0)
     actions = np.tile(np.arange(N_ACTIONS), len(all_macrostates()))
@@ -149,7 +150,7 @@ def model_accuracy(
     z = latents.repeat_interleave(N_ACTIONS, dim=0)
     was_training = model.training
     model.eval()
-    next_z = model.mdn.most_likely(z, torch.as_tensor(actions))
+    next_z = model.most_likely(z, torch.as_tensor(actions))
     right_state = (encoder.classify(next_z).numpy() == truth).all(-1)
     seen = ~is_terminal(states, task)
     generator = torch.Generator().manual_seed(0)
