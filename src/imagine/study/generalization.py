@@ -24,11 +24,21 @@ def predict_next(agent, images: np.ndarray, states: np.ndarray, actions: np.ndar
     """M's most likely next latent from each observation under each action, and the
     macrostate the classifier reads from it."""
     mu, _ = agent.encoder.encode(images, states)
-    device = next(agent.model.parameters()).device  # V may sit on a GPU, M on the CPU
-    agent.model.eval()
-    next_z = agent.model.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
-    agent.model.train()
+    next_z = next_from(agent, mu, actions)
     return next_z, agent.encoder.classify(next_z).numpy()
+
+
+@torch.no_grad()
+def next_from(agent, mu: torch.Tensor, actions: np.ndarray, first_member: bool = False):
+    """M's most likely next latent from V's means (:meth:`WorldModel.most_likely`; with
+    ``first_member``, an ensemble's first MDN alone)."""
+    device = next(agent.model.parameters()).device  # V may sit on a GPU, M on the CPU
+    model = agent.model
+    model.eval()
+    predict = model.mdn.most_likely if first_member else model.most_likely
+    next_z = predict(mu.to(device), torch.as_tensor(actions, device=device))
+    model.train()
+    return next_z
 
 
 def generalization(agent, trials: int = 20, seed: int = 0) -> dict[str, Any]:
@@ -47,9 +57,10 @@ def generalization(agent, trials: int = 20, seed: int = 0) -> dict[str, Any]:
     right = (read == apply_actions(picked, actions)).all(-1)
     every = np.repeat(terminal, N_ACTIONS, axis=0)
     every_actions = np.tile(np.arange(N_ACTIONS), len(terminal))
-    images_all = composer.sample(rng, every)
-    _, read_all = predict_next(agent, images_all, every, every_actions)
-    right_all = (read_all == apply_actions(every, every_actions)).all(-1)
+    mu_all, _ = agent.encoder.encode(composer.sample(rng, every), every)
+    truth_all = apply_actions(every, every_actions)
+    read_all = agent.encoder.classify(next_from(agent, mu_all, every_actions)).numpy()
+    right_all = (read_all == truth_all).all(-1)
     result = {
         "trials": trials,
         "trials_right": int(right.sum()),
@@ -58,22 +69,11 @@ def generalization(agent, trials: int = 20, seed: int = 0) -> dict[str, Any]:
         "all_terminal_accuracy": float(right_all.mean()),
     }
     if len(agent.model.members) > 1:  # the ensemble's mean mode above; its first member alone
-        mu, _ = agent.encoder.encode(images_all, every)
-        first = agent.encoder.classify(first_member_mode(agent, mu, every_actions)).numpy()
+        first = next_from(agent, mu_all, every_actions, first_member=True)
         result["all_terminal_accuracy_first_member"] = float(
-            (first == apply_actions(every, every_actions)).all(-1).mean()
+            (agent.encoder.classify(first).numpy() == truth_all).all(-1).mean()
         )
     return result
-
-
-@torch.no_grad()
-def first_member_mode(agent, mu: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
-    """The most likely next state of an ensemble's first MDN alone."""
-    device = next(agent.model.parameters()).device
-    agent.model.eval()
-    next_z = agent.model.mdn.most_likely(mu.to(device), torch.as_tensor(actions, device=device))
-    agent.model.train()
-    return next_z
 
 
 def generalization_png(agent, out: Path, seed: int = 0) -> Path | None:
