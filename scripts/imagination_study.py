@@ -20,6 +20,7 @@ means the same whatever the preset's defaults.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -589,6 +590,17 @@ def from_terminal(accuracy: dict[str, float], task: str) -> float:
     return right / terminal
 
 
+def gate_cell(found: list[dict[str, float]]) -> str:
+    """The mask gate's acceptance over the imagined transitions of each run (for a run without
+    a gate: what the mask gate would keep of them), and the share right among the kept and
+    the dropped (runs with none dropped leave the latter out)."""
+    if not found or "accepted" not in found[0]:
+        return "-"
+    kept = [x["state_accepted"] for x in found if not math.isnan(x["state_accepted"])]
+    dropped = [x["state_rejected"] for x in found if not math.isnan(x["state_rejected"])]
+    return f"{cell([x['accepted'] for x in found])} ({cell(kept)} / {cell(dropped)})"
+
+
 def imagined(job: Job, budget: int) -> dict[str, float] | None:
     """The imagined-transition accuracy of a finished augmented run at its last checkpoint
     (cached in imagined-NNNNN.json)."""
@@ -615,6 +627,7 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
     head = [f"{t} {b}" for t in tasks for b in budgets] + [f"M sampled {t}" for t in tasks]
     head += [f"imagined right {t} (state / reward)" for t in tasks]
     head += [f"M from terminal states {t}" for t in tasks]
+    head += [f"gate accepts {t} (imagined right: accepted / rejected)" for t in tasks]
     lines = ["| setting | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
     for setting in settings:
         jobs = jobs_of(setting, out, tasks, seeds, budgets, vae)
@@ -654,6 +667,9 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
                 if r["task"] == t and r["budget"] == last and r["model_accuracy"]
             ]
             cells.append(cell(general))
+        for t in tasks:
+            found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
+            cells.append(gate_cell(found))
         lines.append(f"| {SHORT[setting]}: {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
