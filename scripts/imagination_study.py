@@ -591,9 +591,9 @@ def from_terminal(accuracy: dict[str, float], task: str) -> float:
 
 
 def gate_cell(found: list[dict[str, float]]) -> str:
-    """The mask gate's acceptance over the imagined transitions of each run (for a run without
-    a gate: what the mask gate would keep of them), and the share right among the kept and
-    the dropped (runs with none dropped leave the latter out)."""
+    """The share of each run's imagined transitions its gate keeps (for a run without a gate,
+    what the mask gate would keep of them), and the share right among the kept and the
+    dropped (runs that dropped none leave the latter out)."""
     if not found or "accepted" not in found[0]:
         return "-"
     kept = [x["state_accepted"] for x in found if not math.isnan(x["state_accepted"])]
@@ -656,10 +656,11 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
             ]
             if variation:  # a stochastic human: M's hand probabilities against the truth
                 cells[-1] += f" (hand probabilities off by {cell(variation)}%, total variation)"
+        found = {t: [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
+                 for t in tasks}  # fmt: skip
         for t in tasks:
-            found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
-            both = [cell([x[k] for x in found]) for k in ("state", "reward")]
-            cells.append(" / ".join(both) if found else "-")
+            both = [cell([x[k] for x in found[t]]) for k in ("state", "reward")]
+            cells.append(" / ".join(both) if found[t] else "-")
         for t in tasks:
             general = [
                 from_terminal(r["model_accuracy"], t)
@@ -667,9 +668,7 @@ def table(settings: list[str], out: Path, tasks: list[str], seeds: int,
                 if r["task"] == t and r["budget"] == last and r["model_accuracy"]
             ]
             cells.append(cell(general))
-        for t in tasks:
-            found = [x for x in (imagined(j, last) for j in jobs if j.task == t) if x]
-            cells.append(gate_cell(found))
+        cells += [gate_cell(found[t]) for t in tasks]
         lines.append(f"| {SHORT[setting]}: {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
