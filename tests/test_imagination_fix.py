@@ -657,3 +657,35 @@ def test_every_action_backups_switch_to_the_papers_rollouts_at_imagination_actio
         agent_preset("fast", imagination_actions_until=1000)
     with pytest.raises(ConfigError, match="imagination_actions_until must be >= 0"):
         agent_preset("fast", imagination_actions="all", imagination_actions_until=-1)
+
+
+def test_an_agent_switched_to_the_papers_rollouts_keeps_its_n_i_under_the_adaptive_ratio():
+    """With imagination_adaptive, N_I follows the gate's acceptance and M's trust; after
+    imagination_actions_until the rollouts are ungated, so the agent makes the config's N_I
+    (not a ratio frozen at its last gated step), even with an M never trusted."""
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.learning.population import Population
+
+    config = agent_preset(
+        "smoke", encoder="oracle", method="augmented", imagination_start=0,
+        imagination_actions="all", imagination_actions_until=5, imagination_gate="mask",
+        imagination_uncertainty="support", imagination_adaptive=True,
+        imagination_trust_floor=1.0, n_imaginary_updates=2,
+    )  # fmt: skip
+
+    def imaginary_updates(episode: int) -> int:
+        population, made = Population([config], OracleEncoder()), []
+        record = population._record
+
+        def counting(key, loss, rows):
+            made.append(key == "losses/controller_imaginary")
+            record(key, loss, rows)
+
+        population._record = counting
+        for _ in range(4):
+            population.episode = [episode]
+            population.step()
+        return sum(made)
+
+    assert imaginary_updates(0) == 0  # gated, M not trusted: no imaginary update
+    assert imaginary_updates(5) > 0  # switched: the config's N_I

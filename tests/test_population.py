@@ -124,7 +124,7 @@ def fit_known_transition(matmul_dtype: str, updates: int = 300) -> tuple[dict, f
 
 def test_bfloat16_products_learn_a_known_transition_with_float32_weights_and_losses():
     """Mixed precision (``matmul_dtype: bfloat16``, issue 18): weights, gradients and losses
-    stay float32, and M's log-likelihood (equation 6), r and d reach what float32 reaches."""
+    stay float32, and M's log-likelihood (equation 5), r and d reach what float32 reaches."""
     full, full_error = fit_known_transition("float32")
     mixed, mixed_error = fit_known_transition("bfloat16")
     assert all(loss.dtype == torch.float32 for loss in mixed.values())

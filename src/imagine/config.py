@@ -415,7 +415,7 @@ class AgentConfig:
     model_scales: str = "dropout"
     """Which network the scales of M's predictions are fitted on: dropout (the paper: the
     network with dropout's masks, beside its means) or clean (second scale heads, fitted by
-    equation 6 on the same network without the masks, the one that predicts; the body,
+    equation 5 on the same network without the masks, the one that predicts; the body,
     weights and means learn exactly as with dropout). Dropout's masks move the means from
     update to update, so scales fitted beside them are wider than the next states' spread
     when M predicts (README, issue 14, round 13). Costs a mask-free pass of the MDN's body per

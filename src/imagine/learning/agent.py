@@ -10,7 +10,7 @@ once, each into its own):
   continues with the same numbers as if it had never stopped;
 - ``metrics.csv`` and ``tensorboard/``: returns, success, epsilon, every loss and M's accuracy.
 
-The loop, per real time step (Algorithm 1, lines 7-19; :mod:`imagine.learning.population`): encode,
+The loop, per real time step (Algorithm 1, lines 7-21; :mod:`imagine.learning.population`): encode,
 act epsilon-greedily, step, encode, store in M_R; N_E updates of M's three networks; N_R updates of
 C on M_R; from episode I_start on (method ``augmented``), I_B imagined rollouts of depth up to
 I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with imagination off.

@@ -83,7 +83,11 @@ TIE = 1e-6
 
 
 FAR = 1e6
-"""The support distance of a transition whose action M_R does not hold at all."""
+"""The support distance of a transition whose action M_R does not hold at all. It enters the
+ring of first steps like any other u, so while more than 1 - q of the recent first steps are
+FAR (M_R lacks actions: only with an I_start near 0) tau is FAR-sized and the gate keeps them
+too, as if it were off; once M_R holds every action (long before the presets' I_start) a FAR
+transition is always dropped."""
 
 
 def support_distance(

@@ -2,7 +2,7 @@
 
 Every real time step, each running agent takes one step in its own environment (one vectorized
 environment for all), V encodes every agent's observation in one batch, and each of the updates
-of Algorithm 1 (lines 12-19) is one batched computation over the agents' stacked networks
+of Algorithm 1 (lines 12-20) is one batched computation over the agents' stacked networks
 (:mod:`imagine.models.stacked`): N_E updates of M, N_R updates of C on real batches, I_B imagined
 rollouts of depth up to I_D into M_I and N_I updates of C on imaginary batches.
 
@@ -173,7 +173,7 @@ class Population:
         """Take an agent out of the lockstep (budget reached, stopped or failed)."""
         self.active[agent] = False
 
-    # --- one real time step of every running agent (Algorithm 1, lines 7-19) ------------------
+    # --- one real time step of every running agent (Algorithm 1, lines 7-21) ------------------
 
     def step(self) -> list[tuple[int, dict[str, float]]]:
         """One real time step of every running agent; returns (agent, statistics) of each
@@ -290,7 +290,7 @@ class Population:
         return z, agent_normal(batch["next_mu"], batch["next_sigma"], gens)
 
     def _learn_from_real(self, agents: list[int], updates: int, key: str) -> None:
-        """Lines 14-16: ``updates`` C updates of ``agents`` on real batches from M_R."""
+        """Lines 14-15: ``updates`` C updates of ``agents`` on real batches from M_R."""
         if not agents:
             return
         gens = [g if i in agents else None for i, g in enumerate(self.generators)]
@@ -320,7 +320,7 @@ class Population:
             self._record(key, loss, rows)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
-        """Lines 17-19 for the agents past their I_start: imagine, store in M_I what the
+        """Lines 16-20 for the agents past their I_start: imagine, store in M_I what the
         agent's gate keeps (all without one), make N_I updates of C on M_I (with
         ``imagination_adaptive``, as many as its acceptance and M's trust allow;
         :mod:`imagine.learning.gate`)."""
@@ -391,10 +391,14 @@ class Population:
 
     def _imaginary_updates(self, agents: list[int]) -> dict[int, int]:
         """N_I of each agent this step: the config's, or with ``imagination_adaptive`` N_I
-        times its running acceptance, 0 while M is not trusted (:mod:`imagine.learning.gate`)."""
+        times its running acceptance, 0 while M is not trusted (:mod:`imagine.learning.gate`).
+        An agent that ``imagination_actions_until`` has switched to the paper's rollouts
+        (ungated, so no acceptance of its own) makes the config's N_I."""
         c = self.config
         if not c.imagination_adaptive:
             return {i: c.n_imaginary_updates for i in agents}
+        switched = [i for i in agents if actions_at(c, self.episode[i]) != c.imagination_actions]
+        agents = [i for i in agents if i not in switched]
         due = [i for i in agents if self.trust.due(i, self.t[i])]
         if due:  # one batched judgment of the whole population, kept for the agents due
             recent, held = self.real.newest_each(TRUST_RECENT)
@@ -405,7 +409,7 @@ class Population:
             i: imaginary_updates(c.n_imaginary_updates, self.trust.acceptance[i],
                                  self.trust.trusted[i])
             for i in agents
-        }  # fmt: skip
+        } | {i: c.n_imaginary_updates for i in switched}  # fmt: skip
 
     def _imagination_starts(
         self, gens: list[torch.Generator | None]

@@ -4,7 +4,9 @@ looks H steps further through M instead of bootstrapping at once (issue 16).
 For a real transition (z, a, r, z', d) the paper's target (equation 1) is
 y = r + gamma (1 - d) max_a' Q(z', a'). With horizon H, M continues from z' with C's greedy
 actions: z_1 = z', and for h = 1..H, a_h = argmax_a Q(z_h, a), z_{h+1} = M's most likely next
-state, r_h = r(z_{h+1}), d_h = d(z_{h+1}); then
+state (with an ensemble, K >= 2, its first member's: not the members' mean mode that
+:meth:`WorldModel.most_likely` gives the accuracy and generalization checks; whether the mean
+serves C's targets better is not measured), r_h = r(z_{h+1}), d_h = d(z_{h+1}); then
 
     V_{H+1} = max_a Q'(z_{H+1}, a)
     V_h     = r_h + gamma (1 - d_h) V_{h+1}        (h = H..1)

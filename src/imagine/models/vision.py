@@ -5,7 +5,7 @@ The architecture is the World Models convolutional VAE (Ha & Schmidhuber 2018) w
 features, linear maps to mu and log sigma, a linear map back to 1024 features and four
 transposed convolutions (kernels 5, 5, 6, 6; channels 128, 64, 32, 3) to a 3 x 64 x 64 image.
 
-The loss is the paper's equation (5) with the KL term weighted by beta (Higgins et al. 2017):
+The loss is the paper's equation (4) with the KL term weighted by beta (Higgins et al. 2017):
 pixel-wise binary cross-entropy, summed over the image, plus beta times
 KL(N(mu, sigma^2) || N(0, I)) = -1/2 sum_j (1 + log sigma_j^2 - mu_j^2 - sigma_j^2),
 both per image and averaged over the batch. Sampling uses the reparameterization

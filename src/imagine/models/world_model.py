@@ -13,7 +13,7 @@ Three networks learned online from the real memory:
 - the d-network, whether a state is terminal, from the state alone (2 x 256 ReLU, 50% dropout,
   binary cross-entropy).
 
-The MDN's loss is the negative log-likelihood of equation (6),
+The MDN's loss is the negative log-likelihood of equation (5),
 -log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp (with a full covariance,
 N(z_{t+1}; mu_k, L_k L_k^T)).
 
@@ -157,7 +157,7 @@ def sample_mixture(
 
 
 def mixture_nll(mixture: Mixture, target: torch.Tensor) -> torch.Tensor:
-    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 6), per sample; with a
+    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 5), per sample; with a
     full covariance, -log sum_k pi_k N(target; mu_k, L_k L_k^T)."""
     return -torch.logsumexp(mixture.log_pi + component_log_normal(mixture, target), dim=-1)
 
@@ -353,7 +353,7 @@ def mixture_mode(m: Mixture) -> torch.Tensor:
 def responsible_mean(m: Mixture, observed: torch.Tensor) -> torch.Tensor:
     """The mean of each mixture's component that best explains ``observed`` (..., D): the one
     of highest posterior responsibility, argmax_k log pi_k + log N(observed; mu_k, sigma_k^2)
-    (the terms of equation 6). Where one outcome dominates it is the mode; where M knows
+    (the terms of equation 5). Where one outcome dominates it is the mode; where M knows
     several (a hand that may move), the one the observation shows."""
     log_joint = m.log_pi + component_log_normal(m, observed)
     k = log_joint.argmax(-1)[..., None, None].expand(*m.mu.shape[:-2], 1, m.mu.shape[-1])
@@ -503,7 +503,7 @@ class PopulationWorldModel(nn.Module):
         and means are held as they are (no gradient), so they learn exactly as the paper's M.
 
         Dropout's masks move the means from update to update, and the scales learned beside
-        them (equation 6 on the masked network) must cover that jitter too, so at prediction,
+        them (equation 5 on the masked network) must cover that jitter too, so at prediction,
         where the masks are off, they are wider than the next states' spread about the means
         (README, issue 14, round 13). The clean heads are fitted to that spread."""
         x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
@@ -555,7 +555,8 @@ class PopulationWorldModel(nn.Module):
         temperature: float = 1.0,
     ) -> Prediction:
         """The next state of rows (P, N, D) for each agent with a generator (zeros for the
-        others, with the draws), as imagination draws it: a sample of M's mixture, its
+        others with the random draws; with ``mode`` every agent gets its mode, of member 0 when
+        K > 1), as imagination draws it: a sample of M's mixture, its
         ``mode``, a draw from its heaviest component's Gaussian (``component``) or the mean of
         a component drawn by its weight (``outcome``), draws at ``temperature``
         (:func:`sample_mixture`); with K > 1
