@@ -546,6 +546,12 @@ SETTINGS |= {
         "augmented",
         {**S86, **HANDICAP, **TRUST, "imagination_adaptive": False, "imagination_gate": "random"},
     ),
+    # round 22: s93's value expansion follows member 0's modes; the members' mean mode is M's
+    # better point prediction (round 21): do C's targets gain from it?
+    "augmented, as s93 with value expansion through the members' mean mode": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, "value_expansion_members": "mean"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 

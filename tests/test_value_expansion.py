@@ -185,6 +185,45 @@ def test_member_values_are_each_members_own_rollout_through_m():
     assert torch.allclose(values[horizon, :, 0], mve, atol=1e-5)
 
 
+def test_mve_follows_the_first_member_or_the_members_mean_mode(tmp_path):
+    """``value_expansion_members``: member 0's modes (the default) or the members' mean mode,
+    by hand through ``WorldModel.members[0]`` and ``WorldModel.most_likely``; an agent
+    trains with the mean, and a bad value is refused."""
+    torch.manual_seed(3)
+    models = [WorldModel(3, dropout=0.5, ensemble=3) for _ in range(2)]
+    for m in models:
+        m.eval()
+    population = PopulationWorldModel(models)
+    controller = PopulationController([Controller(3), Controller(3)], gamma=0.9)
+    next_z, zero, horizon = torch.randn(2, 4, 3), torch.zeros(2, 4), 2
+
+    def by_hand(step) -> torch.Tensor:
+        z, partial, discount = next_z, torch.zeros(2, 4), torch.ones(2, 4)
+        for _ in range(horizon):
+            action = controller.q(z).argmax(-1)
+            z = torch.stack([step(model, z[i], action[i]) for i, model in enumerate(models)])
+            partial = partial + discount * population.predict_reward(z)
+            discount = discount * 0.9 * (1 - population.is_terminal(z).float())
+        return partial + discount * controller.bootstrap_value(z)
+
+    first = expanded_target(controller, population, zero, next_z, zero, horizon) / 0.9
+    mean = expanded_target(controller, population, zero, next_z, zero, horizon, "mean") / 0.9
+    assert torch.allclose(first, by_hand(lambda m, z, a: m.members[0].most_likely(z, a)),
+                          atol=1e-5)  # fmt: skip
+    assert torch.allclose(mean, by_hand(lambda m, z, a: m.most_likely(z, a)), atol=1e-5)
+    assert not torch.allclose(first, mean)  # three members that differ
+    config = agent_preset("smoke", encoder="oracle", episodes=30, imagination_start=10,
+                          value_expansion=2, model_ensemble=2, imagination_gate="mask",
+                          value_expansion_members="mean")  # fmt: skip
+    agent = train(config, tmp_path, threads=1)
+    assert agent.episode == 30 and agent.config.value_expansion_members == "mean"
+    rows = read_metrics(tmp_path / "metrics.csv")
+    losses = [r["losses/controller_real"] for r in rows if "losses/controller_real" in r]
+    assert losses and all(torch.isfinite(torch.tensor(losses)))
+    with pytest.raises(ConfigError, match="value_expansion_members must be one of"):
+        agent_preset("fast", value_expansion_members="median")
+
+
 def test_an_agent_learns_with_steve_targets(tmp_path):
     config = agent_preset("smoke", encoder="oracle", episodes=40, imagination_start=10,
                           value_expansion=2, value_expansion_weighting="steve",

@@ -314,6 +314,11 @@ class AgentConfig:
     (every horizon 0..H, each member of an ensemble M rolling out alone, weighted by the
     inverse of its variance over the members and the bootstrap's: STEVE, Buckman et al.
     2018; needs ``model_ensemble`` >= 2)."""
+    value_expansion_members: str = "first"
+    """Whose most likely next state the ``mve`` expansion follows with an ensemble M
+    (``model_ensemble`` >= 2): first (member 0's) or mean (the members' mean mode,
+    (1 / K) sum_k mode_k, M's point prediction in the accuracy and generalization checks).
+    One member: the same either way."""
     belief: str = "observation"
     """What the trained C acts on (test episodes, ``Agent.act``): observation (V's mean mu_t of
     the current image; the paper) or filtered (augmented only, once past I_start: the belief
@@ -516,6 +521,7 @@ class AgentConfig:
                    "reward_loss": REWARD_LOSSES, "matmul_dtype": ("float32", "bfloat16"),
                    "imagination_uncertainty": UNCERTAINTIES,
                    "value_expansion_weighting": ("mve", "steve"),
+                   "value_expansion_members": ("first", "mean"),
                    "belief": ("observation", "filtered"),
                    "model_covariance": ("diagonal", "full"),
                    "model_scales": ("dropout", "clean")}  # fmt: skip

@@ -313,7 +313,8 @@ class Population:
                     self._record("charts/expansion_horizon", horizon, expanding_rows)
                 else:
                     expanded = expanded_target(self.controller, self.model, b["reward"],
-                                               next_z, b["done"], c.value_expansion)  # fmt: skip
+                                               next_z, b["done"], c.value_expansion,
+                                               c.value_expansion_members)  # fmt: skip
                 target[expanding] = expanded[expanding]
             loss = self.controller.update(z, b["action"], b["reward"], next_z, b["done"], agents,
                                           target)  # fmt: skip

@@ -4,9 +4,10 @@ looks H steps further through M instead of bootstrapping at once (issue 16).
 For a real transition (z, a, r, z', d) the paper's target (equation 1) is
 y = r + gamma (1 - d) max_a' Q(z', a'). With horizon H, M continues from z' with C's greedy
 actions: z_1 = z', and for h = 1..H, a_h = argmax_a Q(z_h, a), z_{h+1} = M's most likely next
-state (with an ensemble, K >= 2, its first member's: not the members' mean mode that
-:meth:`WorldModel.most_likely` gives the accuracy and generalization checks; whether the mean
-serves C's targets better is not measured), r_h = r(z_{h+1}), d_h = d(z_{h+1}); then
+state (with an ensemble, K >= 2, its first member's, or with ``value_expansion_members:
+mean`` the members' mean mode (1 / K) sum_k mode_k, the point prediction that
+:meth:`WorldModel.most_likely` gives the accuracy and generalization checks), r_h = r(z_{h+1}),
+d_h = d(z_{h+1}); then
 
     V_{H+1} = max_a Q'(z_{H+1}, a)
     V_h     = r_h + gamma (1 - d_h) V_{h+1}        (h = H..1)
@@ -51,14 +52,19 @@ def expanded_target(
     next_z: torch.Tensor,
     done: torch.Tensor,
     horizon: int,
+    members: str = "first",
 ) -> torch.Tensor:
     """The H-step target y (P, B) for real transitions with rewards and ends (P, B) and next
-    latents (P, B, D), as the module describes."""
+    latents (P, B, D), as the module describes; ``members``: an ensemble's first member's
+    modes or their ``mean``."""
     z = next_z
     steps: list[tuple[torch.Tensor, torch.Tensor]] = []
     for _ in range(horizon):
         action = controller.q(z).argmax(-1)
-        z = model.mode(z, action)
+        if members == "mean" and model.ensemble > 1:
+            z = model.member_modes(z, action).mean(1)
+        else:
+            z = model.mode(z, action)
         steps.append((model.predict_reward(z), model.is_terminal(z).float()))
     value = controller.bootstrap_value(z)
     for r, d in reversed(steps):
