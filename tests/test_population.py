@@ -38,6 +38,9 @@ def assert_same_agent(a, b):
                  marks=pytest.mark.slow),
     # members' bootstrap batches, dropout masks and draws per agent
     pytest.param({"model_ensemble": 2}, marks=pytest.mark.slow),
+    # value expansion through the members' mean mode, per agent
+    pytest.param({"model_ensemble": 2, "value_expansion": 2, "value_expansion_members": "mean"},
+                 marks=pytest.mark.slow),
     # a full-covariance M's factors per agent
     pytest.param({"model_covariance": "full"}, marks=pytest.mark.slow),
     # the clean scale heads' mask-free pass per agent
