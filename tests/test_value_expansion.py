@@ -153,15 +153,20 @@ def test_each_member_rolls_out_on_its_own_rows():
                                   atol=1e-5)  # fmt: skip
 
 
-def test_member_values_are_each_members_own_rollout_through_m():
-    """W_j^k of a real ensemble M (dropout configured, not applied) is member k's own j-step
-    return, by hand through ``WorldModel.members[k]``; member 0's W_H is MVE's."""
-    torch.manual_seed(2)
+def two_ensemble_agents(seed: int):
+    """Two agents' ensemble Ms of three members (dropout configured, not applied) and Cs."""
+    torch.manual_seed(seed)
     models = [WorldModel(3, dropout=0.5, ensemble=3) for _ in range(2)]
     for m in models:
         m.eval()
-    population = PopulationWorldModel(models)
     controller = PopulationController([Controller(3), Controller(3)], gamma=0.9)
+    return models, PopulationWorldModel(models), controller
+
+
+def test_member_values_are_each_members_own_rollout_through_m():
+    """W_j^k of a real ensemble M (dropout configured, not applied) is member k's own j-step
+    return, by hand through ``WorldModel.members[k]``; member 0's W_H is MVE's."""
+    models, population, controller = two_ensemble_agents(seed=2)
     next_z = torch.randn(2, 4, 3)
     horizon = 2
     values, continuations = member_values(controller, population, next_z, horizon)
@@ -189,12 +194,7 @@ def test_mve_follows_the_first_member_or_the_members_mean_mode(tmp_path):
     """``value_expansion_members``: member 0's modes (the default) or the members' mean mode,
     by hand through ``WorldModel.members[0]`` and ``WorldModel.most_likely``; an agent
     trains with the mean, and a bad value is refused."""
-    torch.manual_seed(3)
-    models = [WorldModel(3, dropout=0.5, ensemble=3) for _ in range(2)]
-    for m in models:
-        m.eval()
-    population = PopulationWorldModel(models)
-    controller = PopulationController([Controller(3), Controller(3)], gamma=0.9)
+    models, population, controller = two_ensemble_agents(seed=3)
     next_z, zero, horizon = torch.randn(2, 4, 3), torch.zeros(2, 4), 2
 
     def by_hand(step) -> torch.Tensor:
