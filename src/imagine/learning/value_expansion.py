@@ -62,7 +62,7 @@ def expanded_target(
     for _ in range(horizon):
         action = controller.q(z).argmax(-1)
         if members == "mean" and model.ensemble > 1:
-            z = model.member_modes(z, action).mean(1)
+            z = model.mean_mode(z, action)
         else:
             z = model.mode(z, action)
         steps.append((model.predict_reward(z), model.is_terminal(z).float()))

@@ -522,6 +522,12 @@ class PopulationWorldModel(nn.Module):
         return modes.view(z.shape[0], self.ensemble, *z.shape[1:])
 
     @torch.no_grad()
+    def mean_mode(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The members' mean most likely next state (P, N, D), (1 / K) sum_k mode_k: each
+        agent's :meth:`WorldModel.most_likely`."""
+        return self.member_modes(z, action).mean(1)
+
+    @torch.no_grad()
     def member_paths(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Each member's most likely next state on its own rows: latents (P, K, N, D) and
         actions (P, K, N), row [i, k] for member k of agent i; (P, K, N, D). K rollouts, one
