@@ -13,6 +13,10 @@ non-terminal transitions at the last budget.
 for the method with V, a diagnosis of what V costs.
 
 Finished runs are read back; a stopped study resumes (it is `imagine reproduce`'s job machinery).
+``--record DIR`` copies every run's evaluation and imagined-accuracy files (a few hundred bytes
+each) into DIR with the same layout, so that ``--out DIR --table-only`` prints the same tables
+after the run folders (agents, replay, gigabytes) are gone: the per-seed numbers a later study
+is compared against, kept in the repository under ``studies/``.
 Every setting spells out the fields it tests on the former `fast` imagination (FORMER_FAST), so it
 means the same whatever the preset's defaults.
 """
@@ -21,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -576,6 +581,22 @@ def jobs_of(setting: str, out: Path, tasks: list[str], seeds: int, budgets: tupl
     ]
 
 
+def record(jobs: list[Job], out: Path, dest: Path) -> int:
+    """Copy the jobs' ``evaluation-*.json`` and ``imagined-*.json`` from ``out`` into ``dest``
+    at the same relative paths; returns how many files were copied."""
+    copied = 0
+    for job in jobs:
+        folder = Path(job.folder)
+        if not folder.is_dir():
+            continue
+        target = dest / folder.relative_to(out)
+        for path in sorted([*folder.glob("evaluation-*.json"), *folder.glob("imagined-*.json")]):
+            target.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, target / path.name)
+            copied += 1
+    return copied
+
+
 def cell(values: list[float]) -> str:
     if not values:
         return "-"
@@ -761,6 +782,9 @@ def main() -> None:
     parser.add_argument(
         "--compare", metavar="SA,SB", help="also test two settings cell by cell (Welch, U test)"
     )
+    parser.add_argument(
+        "--record", type=Path, metavar="DIR", help="copy the runs' result files into DIR"
+    )
     args = parser.parse_args()
     by_short = {v: k for k, v in SHORT.items()}
     settings = [by_short[s] for s in args.settings.split(",")]
@@ -785,6 +809,10 @@ def main() -> None:
         print()
         pair = [by_short[s] for s in args.compare.split(",")]
         print(compare_table(pair, args.out, tasks, args.seeds, budgets, args.vae))
+    if args.record:
+        jobs = [j for s in settings
+                for j in jobs_of(s, args.out, tasks, args.seeds, budgets, args.vae)]  # fmt: skip
+        print(f"\n{record(jobs, args.out, args.record)} result files recorded in {args.record}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,43 @@
+"""The study script's record: the per-seed result files it copies print the same tables once the
+run folders are gone (scripts/imagination_study.py --record)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+SCRIPT = Path(__file__).parents[1] / "scripts" / "imagination_study.py"
+
+
+def load_study():
+    spec = importlib.util.spec_from_file_location("imagination_study", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_record_keeps_what_the_tables_read(tmp_path):
+    study = load_study()
+    setting = next(name for name, short in study.SHORT.items() if short == "s0")
+    out, dest, budgets = tmp_path / "runs", tmp_path / "studies", (250, 500)
+    jobs = study.jobs_of(setting, out, ["hard"], 3, budgets, "runs/vae-fast")
+    for job in jobs:
+        folder = Path(job.folder)
+        folder.mkdir(parents=True)
+        (folder / "agent.safetensors").write_bytes(b"not recorded")
+        for budget in budgets:
+            success = 0.1 * job.seed + budget / 1000
+            result = {"task": "hard", "budget": budget, "seed": job.seed, "method": "baseline",
+                      "success": success, "model_accuracy": None}  # fmt: skip
+            (folder / f"evaluation-{budget:05d}.json").write_text(json.dumps(result))
+    args = ([setting], out, ["hard"], 3, budgets, "runs/vae-fast")
+    before = study.table(*args), study.iqm_table(*args)
+
+    assert study.record(jobs, out, dest) == 6
+    shutil.rmtree(out)
+    after = study.table([setting], dest, *args[2:]), study.iqm_table([setting], dest, *args[2:])
+    assert after == before
+    assert "35.0 (10.0) [n=3]" in before[0] and "60.0 (10.0) [n=3]" in before[0]
+    assert not list(dest.rglob("*.safetensors"))
