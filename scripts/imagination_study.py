@@ -640,6 +640,8 @@ def imagined(job: Job, budget: int) -> dict[str, float] | None:
         return read_json(path, "imagined accuracy")
     if job.method != "augmented" or not job.evaluation_path(budget).is_file():
         return None
+    if not (Path(job.folder) / "agent.json").is_file():  # a record (--record): no agent to ask
+        return None
     agent = load_agent(job.folder)
     if agent.episode != budget:
         return None

@@ -41,3 +41,21 @@ def test_record_keeps_what_the_tables_read(tmp_path):
     assert after == before
     assert "35.0 (10.0) [n=3]" in before[0] and "60.0 (10.0) [n=3]" in before[0]
     assert not list(dest.rglob("*.safetensors"))
+
+
+def test_a_record_without_the_budgets_imagined_file_prints_a_dash(tmp_path):
+    """A recorded augmented run holds imagined-NNNNN.json only for the budgets that were last
+    when it ran; a table at another budget shows '-' there instead of asking for the agent."""
+    study = load_study()
+    setting = next(name for name, short in study.SHORT.items() if short == "s93")
+    dest = tmp_path / "studies"
+    (job,) = study.jobs_of(setting, dest, ["hard"], 1, (250,), "runs/vae-fast")
+    folder = Path(job.folder)
+    folder.mkdir(parents=True)
+    result = {"task": "hard", "budget": 250, "seed": 0, "method": "augmented", "success": 0.1,
+              "model_accuracy": None}  # fmt: skip
+    (folder / "evaluation-00250.json").write_text(json.dumps(result))
+    (folder / "imagined-02000.json").write_text(json.dumps({"state": 0.99}))
+
+    assert study.imagined(job, 250) is None
+    assert "10.0" in study.table([setting], dest, ["hard"], 1, (250,), "runs/vae-fast")
