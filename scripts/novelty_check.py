@@ -1,0 +1,194 @@
+"""How much of M's early error is novelty, and can any detector of it reach issue 15's AUROC?
+
+For each agent run given (issue 15's early regime: an augmented agent at 250 episodes, where
+a fifth to a half of imagined transitions are wrong), the transitions imagination hands C as
+``imagine evaluate`` makes them, judged by V's latent classifier (which the agent never uses).
+Each is given its *visits*: how many real transitions of the agent's M_R start in the same
+macrostate (read by the same classifier) with the same action, i.e. how often M has seen this
+(state, action) pair. Prints, pooled over the runs, the share of transitions and how often
+they are wrong per number of visits, and per run the AUROC as a detector of the wrong ones of:
+
+- disagreement: the K members' mean pairwise distance between modes (the `fast` gate's u);
+- support: the distance from (z, a) to the nearest real start with action a (label-free
+  novelty, :func:`imagine.learning.gate.support_distance`);
+- sum of ranks: disagreement's rank + support's rank;
+- visits (oracle): minus the visit count, a perfect novelty detector (it uses the labels);
+- oracle bound: the AUROC of a detector that ranks every never-visited pair above every
+  visited one and every wrong visited transition above every right one, but cannot tell M's
+  right generalizations from its wrong ones on never-visited pairs (ties);
+- the AUROC of disagreement and support *within* the never-visited pairs.
+
+``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (as the
+agent trains its M: the same networks, batches and number of updates) with a *randomized prior
+function* per member (Osband, Aslanides and Cassirer 2018): a fixed random network whose
+output, times beta, is added to the member's mean head, so that members agree where data
+constrain them and keep their priors' differences where none do. beta 0 is the plain
+ensemble. Prints each one's disagreement AUROC and how many of its imagined transitions are
+right.
+
+    .venv/bin/python scripts/novelty_check.py runs/study23/s93/hard-{10..19} --priors 0,0.3,1,3
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.stats import rankdata
+
+from imagine.envs.gesture_puzzle.evaluation import auroc, imagined_transitions
+from imagine.envs.gesture_puzzle.rules import N_ACTIONS, macrostate_index
+from imagine.learning.agent import load_agent
+from imagine.learning.gate import support_distance
+from imagine.models.world_model import PopulationWorldModel, WorldModel
+
+sys.path.insert(0, str(Path(__file__).parent))
+from m_offline import real_memory
+
+BINS = ((0, 0), (1, 1), (2, 3), (4, 9), (10, None))
+
+
+def visits(agent, z: torch.Tensor, action: torch.Tensor) -> np.ndarray:
+    """Per transition, the number of M_R's real transitions from the same macrostate (V's
+    classifier) with the same action."""
+    held_mu, held_action = agent.memory_starts
+    pairs = macrostate_index(agent.encoder.classify(held_mu).numpy()) * N_ACTIONS
+    counts = np.bincount(pairs + held_action.numpy(), minlength=192 * N_ACTIONS)
+    return counts[macrostate_index(agent.encoder.classify(z).numpy()) * N_ACTIONS + action.numpy()]
+
+
+def oracle_bound(seen: np.ndarray, wrong: np.ndarray) -> float:
+    """AUROC of never-visited first, then wrong visited ones, with no order among the
+    never-visited."""
+    return auroc(np.where(seen == 0, 2.0, wrong.astype(float)), wrong)
+
+
+class RandomPrior(torch.nn.Module):
+    """One fixed random network per stacked MDN row, g_k(z, a) = W2 tanh(W1 [z, a] + b1),
+    its output (D) added times beta to each of the row's components' means."""
+
+    def __init__(self, rows: int, inputs: int, latent_dim: int, components: int, beta: float,
+                 hidden: int = 64, seed: int = 123) -> None:  # fmt: skip
+        super().__init__()
+        g = torch.Generator().manual_seed(seed)
+        self.register_buffer("w1", torch.randn(rows, inputs, hidden, generator=g) / inputs**0.5)
+        self.register_buffer("b1", 0.5 * torch.randn(rows, 1, hidden, generator=g))
+        self.register_buffer("w2", torch.randn(rows, hidden, latent_dim, generator=g) / hidden**0.5)
+        self.beta, self.components = beta, components
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.beta * (torch.tanh(x @ self.w1 + self.b1) @ self.w2).repeat(
+            1, 1, self.components
+        )
+
+
+class PriorWorldModel(PopulationWorldModel):
+    """A one-agent population M whose members' means carry a :class:`RandomPrior` (mean
+    head output + beta g_k(z, a), before the residual z is added)."""
+
+    def __init__(self, model: WorldModel, beta: float) -> None:
+        super().__init__([model])
+        components = model.mdn.n_components
+        self.prior = RandomPrior(self.ensemble, self.latent_dim + self.n_actions,
+                                 self.latent_dim, components, beta)  # fmt: skip
+
+    def _heads(self, z, action, generators=None):
+        heads = super()._heads(z, action, generators)
+        x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
+        return (heads[0], heads[1] + self.prior(x), *heads[2:])
+
+
+def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldModel:
+    """A new M of the agent's form, trained on its real memory as the agent trains its own:
+    ``model_updates`` bootstrapped updates per real transition held."""
+    c = agent.config
+    memory = real_memory(run, agent.encoder.latent_dim)
+    torch.manual_seed(seed)
+    model = WorldModel(agent.encoder.latent_dim, n_components=c.n_components, dropout=c.dropout,
+                       reward_hidden=c.reward_hidden, residual=c.model_residual,
+                       ensemble=c.model_ensemble)  # fmt: skip
+    population = PriorWorldModel(model, beta)
+    generator = torch.Generator().manual_seed(seed)
+    for _ in range(len(memory) * c.model_updates):
+        batch = memory.sample(c.model_batch * c.model_ensemble, [generator])
+        population.update(batch, [generator], resample=c.model_latents == "sample")
+    return population.eval()
+
+
+def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    agent = load_agent(run)
+    if agent.memory_starts is None or agent.config.model_ensemble < 2:
+        raise SystemExit(f"error: {run} holds no M_R or no ensemble of M")
+    r, _, right = imagined_transitions(agent, starts, torch.Generator().manual_seed(0))
+    wrong = ~right
+    seen = visits(agent, r["z"], r["action"])
+    disagreement = r["disagreement"].numpy()
+    support = support_distance(r["z"], r["action"], *agent.memory_starts).numpy()
+    unseen = seen == 0
+    out = {
+        "wrong": float(wrong.mean()),
+        "disagreement": auroc(disagreement, wrong),
+        "support": auroc(support, wrong),
+        "sum of ranks": auroc(rankdata(disagreement) + rankdata(support), wrong),
+        "visits (oracle)": auroc(-seen.astype(float), wrong),
+        "oracle bound": oracle_bound(seen, wrong),
+        "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
+        "support, never visited": auroc(support[unseen], wrong[unseen]),
+    }
+    return out, seen, wrong
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--starts", type=int, default=100, help="real start states per agent")
+    parser.add_argument("--priors", default="", help="betas of fresh prior ensembles, e.g. 0,1")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    betas = [float(b) for b in args.priors.split(",") if b]
+    rows, seen_all, wrong_all, prior_rows = [], [], [], []
+    for run in args.runs:
+        out, seen, wrong = check(run, args.starts)
+        rows.append(out)
+        seen_all.append(seen)
+        wrong_all.append(wrong)
+        print(run, ", ".join(f"{k} {v:.3f}" for k, v in out.items()), flush=True)
+        if betas:
+            agent = load_agent(run)
+            found = []
+            for beta in betas:
+                model = fresh_ensemble(run, agent, beta)
+                generator = torch.Generator().manual_seed(0)
+                r, _, right = imagined_transitions(agent, args.starts, generator, model)
+                found.append((auroc(r["disagreement"].numpy(), ~right), float(right.mean())))
+                print(f"  prior beta {beta}: disagreement AUROC {found[-1][0]:.3f}, "
+                      f"imagined right {found[-1][1]:.3f}", flush=True)  # fmt: skip
+            prior_rows.append(found)
+    seen, wrong = np.concatenate(seen_all), np.concatenate(wrong_all)
+    print("\n| visits of the (state, action) pair in M_R | share of imagined transitions | wrong |")
+    print("| --- | --- | --- |")
+    for low, high in BINS:
+        inside = (seen >= low) & (seen <= (high if high is not None else math.inf))
+        name = f"{low}" if low == high else (f"{low}-{high}" if high is not None else f">= {low}")
+        print(f"| {name} | {inside.mean():.1%} | {wrong[inside].mean():.1%} |")
+    print(f"\n| AUROC over {len(rows)} runs | mean (std) | min-max |\n| --- | --- | --- |")
+    for key in rows[0]:
+        x = np.array([row[key] for row in rows])
+        print(f"| {key} | {np.nanmean(x):.3f} ({np.nanstd(x, ddof=1):.3f}) | "
+              f"{np.nanmin(x):.3f}-{np.nanmax(x):.3f} |")  # fmt: skip
+    if prior_rows:
+        x = np.array(prior_rows)  # (runs, betas, 2)
+        print("\n| fresh ensemble, prior beta | disagreement AUROC | imagined right |")
+        print("| --- | --- | --- |")
+        for j, beta in enumerate(betas):
+            print(f"| {beta} | {x[:, j, 0].mean():.3f} ({x[:, j, 0].std(ddof=1):.3f}) | "
+                  f"{x[:, j, 1].mean():.1%} |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
