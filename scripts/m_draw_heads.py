@@ -6,6 +6,7 @@ diagonal mixture fitted to each macrostate's cloud), while the agents' M draws r
 65%. This script asks whether what M has learned already holds the rest: for each run given
 (an augmented agent's last checkpoint), it takes M's first member, freezes its body in eval
 mode (no dropout masks: the network that predicts), and fits copies of its three heads
+(``--fresh``: newly initialized ones)
 (weights, means, scales) by equation (5) on the agent's real memory M_R, with the start
 latents drawn from V's N(mu, sigma) as M learns, and the targets either drawn too (as the
 `fast` M learns) or V's means. Prints, as `imagine evaluate`'s `transition_sampled` judges
@@ -68,11 +69,13 @@ def judge(agent, mdn: MDN, heads: Heads, draws: int) -> tuple[float, float, floa
     return float(np.mean(right)), float(mode.mean()), float(m.log_pi.exp().max(-1).values.mean())
 
 
-def refit(mdn: MDN, memory, updates: int, batch: int, targets: str) -> Heads:
-    """Copies of M's heads fitted by equation (5) on M_R, the body frozen."""
+def refit(mdn: MDN, memory, updates: int, batch: int, targets: str, fresh: bool) -> Heads:
+    """Copies of M's heads (``fresh``: new heads of their shapes, PyTorch's initialization)
+    fitted by equation (5) on M_R, the body frozen."""
     torch.manual_seed(0)
-    heads = tuple(copy.deepcopy(h).requires_grad_(True)
-                  for h in (mdn.pi_head, mdn.mu_head, mdn.sigma_head))  # fmt: skip
+    own = (mdn.pi_head, mdn.mu_head, mdn.sigma_head)
+    heads = tuple((torch.nn.Linear(h.in_features, h.out_features) if fresh else copy.deepcopy(h))
+                  .requires_grad_(True) for h in own)  # fmt: skip
     optimizer = torch.optim.Adam([p for h in heads for p in h.parameters()], lr=1e-3)
     generator = torch.Generator().manual_seed(0)
     for _ in range(updates):
@@ -94,6 +97,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=4000)
     parser.add_argument("--batch", type=int, default=128)
     parser.add_argument("--draws", type=int, default=20, help="draws per transition")
+    parser.add_argument("--fresh", action="store_true", help="refit new heads, not M's copies")
     args = parser.parse_args()
     torch.set_num_threads(1)
     found: dict[str, list[tuple[float, float, float]]] = {}
@@ -104,7 +108,7 @@ def main() -> None:
         rows = {"M's own heads": judge(agent, mdn, (mdn.pi_head, mdn.mu_head, mdn.sigma_head),
                                        args.draws)}  # fmt: skip
         for targets in ("draws", "means"):
-            heads = refit(mdn, memory, args.updates, args.batch, targets)
+            heads = refit(mdn, memory, args.updates, args.batch, targets, args.fresh)
             rows[f"heads refit, targets V's {targets}"] = judge(agent, mdn, heads, args.draws)
         cells = [f"{k} {d:.1%} / {m:.1%} / {w:.2f}" for k, (d, m, w) in rows.items()]
         print(f"{run} ({len(memory)} real transitions): " + "; ".join(cells), flush=True)
@@ -115,7 +119,8 @@ def main() -> None:
     print("| --- | --- | --- | --- |")
     for key, values in found.items():
         x = 100 * np.array(values)
-        print(f"| {key} | {x[:, 0].mean():.1f} ({x[:, 0].std():.1f}) | {x[:, 1].mean():.1f} | "
+        spread = x[:, 0].std(ddof=1) if len(x) > 1 else 0.0
+        print(f"| {key} | {x[:, 0].mean():.1f} ({spread:.1f}) | {x[:, 1].mean():.1f} | "
               f"{x[:, 2].mean() / 100:.2f} |")  # fmt: skip
 
 

@@ -17,8 +17,8 @@ A bound for M's form, not for M: an M whose scales are narrower than the cloud's
 on draws, and one whose scales are wider (dropout, too little training) worse. M's mixture has
 ``n_components`` (5) diagonal components per transition, so it may also spread them over one
 outcome's cloud: the rows "K-component diagonal mixture" fit K components to each
-macrostate's cloud by expectation-maximization (:func:`diagonal_mixture`), the best a perfect
-M of that form could do.
+macrostate's cloud by expectation-maximization (:func:`diagonal_mixture`, a local maximum of
+the likelihood): what an M of that form fitted to each cloud would draw.
 """
 
 from __future__ import annotations

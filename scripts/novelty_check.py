@@ -1,7 +1,7 @@
 """How much of M's early error is novelty, and can any detector of it reach issue 15's AUROC?
 
 For each agent run given (issue 15's early regime: an augmented agent at 250 episodes, where
-a fifth to a half of imagined transitions are wrong), the transitions imagination hands C as
+8-56% of imagined transitions are wrong), the transitions imagination hands C as
 ``imagine evaluate`` makes them, judged by V's latent classifier (which the agent never uses).
 Each is given its *visits*: how many real transitions of the agent's M_R start in the same
 macrostate (read by the same classifier) with the same action, i.e. how often M has seen this
@@ -13,13 +13,14 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
   novelty, :func:`imagine.learning.gate.support_distance`);
 - sum of ranks: disagreement's rank + support's rank;
 - visits (oracle): minus the visit count, a perfect novelty detector (it uses the labels);
-- oracle bound: the AUROC of a detector that ranks every never-visited pair above every
-  visited one and every wrong visited transition above every right one, but cannot tell M's
-  right generalizations from its wrong ones on never-visited pairs (ties);
+- oracle bound: the best AUROC of a detector that orders the visited transitions perfectly
+  (every wrong one above every right one) but cannot tell M's right guesses from its wrong
+  ones on never-visited pairs (ties): the never-visited placed between the two;
 - the AUROC of disagreement and support *within* the never-visited pairs.
 
-``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (as the
-agent trains its M: the same networks, batches and number of updates) with a *randomized prior
+``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (the
+agent's networks, batches and number of updates, but all on the final M_R rather than online)
+with a *randomized prior
 function* per member (Osband, Aslanides and Cassirer 2018): a fixed random network whose
 output, times beta, is added to the member's mean head, so that members agree where data
 constrain them and keep their priors' differences where none do. beta 0 is the plain
@@ -42,7 +43,7 @@ import torch.nn.functional as F
 from scipy.stats import rankdata
 
 from imagine.envs.gesture_puzzle.evaluation import auroc, imagined_transitions
-from imagine.envs.gesture_puzzle.rules import N_ACTIONS, macrostate_index
+from imagine.envs.gesture_puzzle.rules import N_ACTIONS, N_MACROSTATES, macrostate_index
 from imagine.learning.agent import load_agent
 from imagine.learning.gate import support_distance
 from imagine.models.world_model import PopulationWorldModel, WorldModel
@@ -58,14 +59,14 @@ def visits(agent, z: torch.Tensor, action: torch.Tensor) -> np.ndarray:
     classifier) with the same action."""
     held_mu, held_action = agent.memory_starts
     pairs = macrostate_index(agent.encoder.classify(held_mu).numpy()) * N_ACTIONS
-    counts = np.bincount(pairs + held_action.numpy(), minlength=192 * N_ACTIONS)
+    counts = np.bincount(pairs + held_action.numpy(), minlength=N_MACROSTATES * N_ACTIONS)
     return counts[macrostate_index(agent.encoder.classify(z).numpy()) * N_ACTIONS + action.numpy()]
 
 
 def oracle_bound(seen: np.ndarray, wrong: np.ndarray) -> float:
-    """AUROC of never-visited first, then wrong visited ones, with no order among the
-    never-visited."""
-    return auroc(np.where(seen == 0, 2.0, wrong.astype(float)), wrong)
+    """The best AUROC without any order among the never-visited: wrong visited ones first
+    (2), the never-visited next (1, ties), right visited ones last (0)."""
+    return auroc(np.where(seen == 0, 1.0, 2.0 * wrong), wrong)
 
 
 class RandomPrior(torch.nn.Module):
@@ -91,8 +92,8 @@ class PriorWorldModel(PopulationWorldModel):
     """A one-agent population M whose members' means carry a :class:`RandomPrior` (mean
     head output + beta g_k(z, a), before the residual z is added)."""
 
-    def __init__(self, model: WorldModel, beta: float) -> None:
-        super().__init__([model])
+    def __init__(self, model: WorldModel, beta: float, lr: float, reward_loss: str) -> None:
+        super().__init__([model], lr, reward_loss)
         components = model.mdn.n_components
         self.prior = RandomPrior(self.ensemble, self.latent_dim + self.n_actions,
                                  self.latent_dim, components, beta)  # fmt: skip
@@ -107,12 +108,16 @@ def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldMo
     """A new M of the agent's form, trained on its real memory as the agent trains its own:
     ``model_updates`` bootstrapped updates per real transition held."""
     c = agent.config
+    if c.model_scales != "dropout":  # the clean scale heads' loss bypasses _heads
+        raise SystemExit(f"error: {run}: --priors needs model_scales dropout")
     memory = real_memory(run, agent.encoder.latent_dim)
     torch.manual_seed(seed)
-    model = WorldModel(agent.encoder.latent_dim, n_components=c.n_components, dropout=c.dropout,
-                       reward_hidden=c.reward_hidden, residual=c.model_residual,
-                       ensemble=c.model_ensemble)  # fmt: skip
-    population = PriorWorldModel(model, beta)
+    model = WorldModel(agent.encoder.latent_dim, N_ACTIONS, n_components=c.n_components,
+                       dropout=c.dropout, reward_hidden=c.reward_hidden,
+                       terminal_hidden=c.terminal_hidden, residual=c.model_residual,
+                       reward_dropout=c.reward_dropout, ensemble=c.model_ensemble,
+                       covariance=c.model_covariance)  # fmt: skip
+    population = PriorWorldModel(model, beta, c.model_lr, c.reward_loss)
     generator = torch.Generator().manual_seed(seed)
     for _ in range(len(memory) * c.model_updates):
         batch = memory.sample(c.model_batch * c.model_ensemble, [generator])

@@ -1,6 +1,6 @@
 """The bound on M's draws (scripts/m_sample_bound.py): its mixture fit recovers a known
-mixture, and the draws of a mixture follow its weights, so the "5-component" row bounds an M
-of that form."""
+mixture, and the draws of a mixture follow its weights, so the "5-component" row is what an M
+of that form fitted to each cloud would draw."""
 
 from __future__ import annotations
 
