@@ -11,7 +11,10 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
 - disagreement: the K members' mean pairwise distance between modes (the `fast` gate's u);
 - support: the distance from (z, a) to the nearest real start with action a (label-free
   novelty, :func:`imagine.learning.gate.support_distance`);
-- sum of ranks: disagreement's rank + support's rank;
+- lookup: the distance from M's next state to what the nearest real transition with the
+  same action says it is (`scripts/uncertainty_check.py`), a non-parametric model's
+  disagreement with M;
+- sums of ranks: disagreement's rank + support's rank, support's + lookup's, and all three;
 - visits (oracle): minus the visit count, a perfect novelty detector (it uses the labels);
 - oracle bound: the best AUROC of a detector that orders the visited transitions perfectly
   (every wrong one above every right one) but cannot tell M's right guesses from its wrong
@@ -50,6 +53,7 @@ from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 sys.path.insert(0, str(Path(__file__).parent))
 from m_offline import real_memory
+from uncertainty_check import lookup_distance
 
 BINS = ((0, 0), (1, 1), (2, 3), (4, 9), (10, None))
 
@@ -134,12 +138,19 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
     seen = visits(agent, r["z"], r["action"])
     disagreement = r["disagreement"].numpy()
     support = support_distance(r["z"], r["action"], *agent.memory_starts).numpy()
+    memory = real_memory(run, agent.encoder.latent_dim)
+    held = memory.state_dict("real")  # M_R's filled part
+    lookup = lookup_distance(r, held["real.mu"], held["real.action"], held["real.next_mu"])
+    ranks = {k: rankdata(v) for k, v in (("d", disagreement), ("s", support), ("l", lookup))}
     unseen = seen == 0
     out = {
         "wrong": float(wrong.mean()),
         "disagreement": auroc(disagreement, wrong),
         "support": auroc(support, wrong),
-        "sum of ranks": auroc(rankdata(disagreement) + rankdata(support), wrong),
+        "lookup": auroc(lookup.numpy(), wrong),
+        "disagreement + support (ranks)": auroc(ranks["d"] + ranks["s"], wrong),
+        "support + lookup (ranks)": auroc(ranks["s"] + ranks["l"], wrong),
+        "all three (ranks)": auroc(ranks["d"] + ranks["s"] + ranks["l"], wrong),
         "visits (oracle)": auroc(-seen.astype(float), wrong),
         "oracle bound": oracle_bound(seen, wrong),
         "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
