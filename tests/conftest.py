@@ -29,3 +29,26 @@ def smoke_agent(tmp_path):
         return config, load_agent(tmp_path / "run")
 
     return train
+
+
+@pytest.fixture
+def load_script():
+    """Import one of `scripts/` by name (e.g. ``load_script("m_sample_bound")``), with the
+    folder on the path while it loads, as it is when run (scripts import their siblings)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    folder = Path(__file__).parents[1] / "scripts"
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.path.insert(0, str(folder))
+        try:
+            spec.loader.exec_module(module)
+        finally:
+            sys.path.remove(str(folder))
+        return module
+
+    return load

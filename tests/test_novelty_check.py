@@ -3,32 +3,15 @@ never-visited pairs can do, and a randomized prior of beta 0 is the plain ensemb
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import torch
 
 from imagine.envs.gesture_puzzle.evaluation import auroc
 from imagine.models.world_model import PopulationWorldModel, WorldModel
 
-SCRIPTS = Path(__file__).parents[1] / "scripts"
 
-
-def load_novelty():
-    sys.path.insert(0, str(SCRIPTS))  # it imports its sibling scripts
-    try:
-        spec = importlib.util.spec_from_file_location("novelty_check", SCRIPTS / "novelty_check.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPTS))
-    return module
-
-
-def test_oracle_bound_beats_every_detector_blind_among_the_never_visited():
-    novelty = load_novelty()
+def test_oracle_bound_beats_every_detector_blind_among_the_never_visited(load_script):
+    novelty = load_script("novelty_check")
     rng = np.random.default_rng(0)
     seen = rng.integers(0, 4, 400)
     wrong = rng.random(400) < np.where(seen == 0, 0.55, 0.15)
@@ -41,8 +24,8 @@ def test_oracle_bound_beats_every_detector_blind_among_the_never_visited():
     assert auroc(best, wrong) == bound
 
 
-def test_a_prior_of_beta_zero_is_the_plain_ensemble():
-    novelty = load_novelty()
+def test_a_prior_of_beta_zero_is_the_plain_ensemble(load_script):
+    novelty = load_script("novelty_check")
     torch.manual_seed(0)
     model = WorldModel(8, ensemble=3, dropout=0.0, residual=True, reward_hidden=32)
     plain = PopulationWorldModel([model]).eval()

@@ -4,19 +4,7 @@ of that form fitted to each cloud would draw."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import torch
-
-SCRIPT = Path(__file__).parents[1] / "scripts" / "m_sample_bound.py"
-
-
-def load_bound():
-    spec = importlib.util.spec_from_file_location("m_sample_bound", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def two_clouds(groups: int, n: int, generator: torch.Generator) -> torch.Tensor:
@@ -28,8 +16,8 @@ def two_clouds(groups: int, n: int, generator: torch.Generator) -> torch.Tensor:
     return centre + scale * torch.randn(groups, n, 2, generator=generator)
 
 
-def test_diagonal_mixture_recovers_two_components():
-    bound = load_bound()
+def test_diagonal_mixture_recovers_two_components(load_script):
+    bound = load_script("m_sample_bound")
     x = two_clouds(4, 2000, torch.Generator().manual_seed(0))
     weight, mean, var = bound.diagonal_mixture(x, 2)
     order = mean[..., 0].argsort(-1)  # the component at -3 first
@@ -42,8 +30,8 @@ def test_diagonal_mixture_recovers_two_components():
                           atol=0.04)  # fmt: skip
 
 
-def test_mixture_draws_follow_the_weights_and_components():
-    bound = load_bound()
+def test_mixture_draws_follow_the_weights_and_components(load_script):
+    bound = load_script("m_sample_bound")
     weight = torch.tensor([[0.25, 0.75]])
     mean = torch.tensor([[[-5.0], [5.0]]])
     var = torch.tensor([[[0.01], [0.04]]])

@@ -3,23 +3,13 @@ run folders are gone (scripts/imagination_study.py --record)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 from pathlib import Path
 
-SCRIPT = Path(__file__).parents[1] / "scripts" / "imagination_study.py"
 
-
-def load_study():
-    spec = importlib.util.spec_from_file_location("imagination_study", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_record_keeps_what_the_tables_read(tmp_path):
-    study = load_study()
+def test_record_keeps_what_the_tables_read(tmp_path, load_script):
+    study = load_script("imagination_study")
     setting = next(name for name, short in study.SHORT.items() if short == "s0")
     out, dest, budgets = tmp_path / "runs", tmp_path / "studies", (250, 500)
     jobs = study.jobs_of(setting, out, ["hard"], 3, budgets, "runs/vae-fast")
@@ -43,10 +33,10 @@ def test_record_keeps_what_the_tables_read(tmp_path):
     assert not list(dest.rglob("*.safetensors"))
 
 
-def test_a_record_without_the_budgets_imagined_file_prints_a_dash(tmp_path):
+def test_a_record_without_the_budgets_imagined_file_prints_a_dash(tmp_path, load_script):
     """A recorded augmented run holds imagined-NNNNN.json only for the budgets that were last
     when it ran; a table at another budget shows '-' there instead of asking for the agent."""
-    study = load_study()
+    study = load_script("imagination_study")
     setting = next(name for name, short in study.SHORT.items() if short == "s93")
     dest = tmp_path / "studies"
     (job,) = study.jobs_of(setting, dest, ["hard"], 1, (250,), "runs/vae-fast")
