@@ -14,7 +14,9 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
 - lookup: the distance from M's next state to what the nearest real transition with the
   same action says it is (`scripts/uncertainty_check.py`), a non-parametric model's
   disagreement with M;
-- sums of ranks: disagreement's rank + support's rank, support's + lookup's, and all three;
+- sums of ranks: disagreement's rank + support's rank, support's + lookup's, and all three
+  (and how often the half of the transitions with the lowest sum of all three is right: what a
+  gate accepting half would keep);
 - visits (oracle): minus the visit count, a perfect novelty detector (it uses the labels);
 - oracle bound: the best AUROC of a detector that orders the visited transitions perfectly
   (every wrong one above every right one) but cannot tell M's right guesses from its wrong
@@ -65,6 +67,11 @@ def visits(agent, z: torch.Tensor, action: torch.Tensor) -> np.ndarray:
     pairs = macrostate_index(agent.encoder.classify(held_mu).numpy()) * N_ACTIONS
     counts = np.bincount(pairs + held_action.numpy(), minlength=N_MACROSTATES * N_ACTIONS)
     return counts[macrostate_index(agent.encoder.classify(z).numpy()) * N_ACTIONS + action.numpy()]
+
+
+def half_least(scores: np.ndarray) -> np.ndarray:
+    """The half of the transitions with the lowest scores (a gate that accepts half)."""
+    return np.argsort(scores, kind="stable")[: len(scores) // 2]
 
 
 def oracle_bound(seen: np.ndarray, wrong: np.ndarray) -> float:
@@ -151,6 +158,9 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "disagreement + support (ranks)": auroc(ranks["d"] + ranks["s"], wrong),
         "support + lookup (ranks)": auroc(ranks["s"] + ranks["l"], wrong),
         "all three (ranks)": auroc(ranks["d"] + ranks["s"] + ranks["l"], wrong),
+        "right, the half least suspect by all three (not an AUROC)": float(
+            right[half_least(ranks["d"] + ranks["s"] + ranks["l"])].mean()
+        ),
         "visits (oracle)": auroc(-seen.astype(float), wrong),
         "oracle bound": oracle_bound(seen, wrong),
         "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
