@@ -17,8 +17,9 @@ A bound for M's form, not for M: an M whose scales are narrower than the cloud's
 on draws, and one whose scales are wider (dropout, too little training) worse. M's mixture has
 ``n_components`` (5) diagonal components per transition, so it may also spread them over one
 outcome's cloud: the rows "K-component diagonal mixture" fit K components to each
-macrostate's cloud by expectation-maximization (:func:`diagonal_mixture`, a local maximum of
-the likelihood): what an M of that form fitted to each cloud would draw.
+macrostate's cloud by expectation-maximization
+(:func:`imagine.envs.gesture_puzzle.vision_report.diagonal_mixture`, a local maximum of the
+likelihood): what an M of that form fitted to each cloud would draw.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from imagine.envs.gesture_puzzle.rules import (
     is_terminal,
     macrostate_index,
 )
+from imagine.envs.gesture_puzzle.vision_report import diagonal_mixture, mixture_draws
 
 
 def next_state_weights(task: str) -> np.ndarray:
@@ -46,41 +48,6 @@ def next_state_weights(task: str) -> np.ndarray:
     seen = ~is_terminal(states, task)
     index = macrostate_index(apply_actions(states[seen], actions[seen]))
     return np.bincount(index, minlength=192) / len(index)
-
-
-def diagonal_mixture(
-    x: torch.Tensor, k: int, iterations: int = 200, seed: int = 0
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per group of points x (G, N, D) a k-component diagonal Gaussian mixture fitted by
-    expectation-maximization (means started at k distinct points of the group): weights
-    (G, k), means (G, k, D), variances (G, k, D)."""
-    groups, n, d = x.shape
-    generator = torch.Generator().manual_seed(seed)
-    start = torch.stack([torch.randperm(n, generator=generator)[:k] for _ in range(groups)])
-    mean = x.gather(1, start[..., None].expand(groups, k, d)).clone()
-    var = x.var(1, keepdim=True).expand(groups, k, d).clone()
-    weight = torch.full((groups, k), 1.0 / k)
-    for _ in range(iterations):
-        log_p = -0.5 * ((x[:, :, None] - mean[:, None]).square() / var[:, None]
-                        + var[:, None].log()).sum(-1) + weight.log()[:, None]  # fmt: skip
-        resp = torch.softmax(log_p, -1)  # (G, N, k): E step
-        mass = resp.sum(1) + 1e-8  # M step
-        weight = mass / n
-        mean = resp.transpose(1, 2) @ x / mass[..., None]
-        var = (resp.transpose(1, 2) @ x.square() / mass[..., None] - mean.square()).clamp(min=1e-5)
-    return weight, mean, var
-
-
-def mixture_draws(
-    weight: torch.Tensor, mean: torch.Tensor, var: torch.Tensor, n: int, generator
-) -> torch.Tensor:
-    """n draws (G, n, D) from each group's diagonal mixture: a component by weight, then its
-    Gaussian."""
-    groups, _, d = mean.shape
-    k = torch.multinomial(weight, n, replacement=True, generator=generator)[..., None]
-    k = k.expand(groups, n, d)
-    noise = torch.randn(groups, n, d, generator=generator)
-    return mean.gather(1, k) + var.gather(1, k).sqrt() * noise
 
 
 def right(encoder: VaeEncoder, draws: torch.Tensor) -> np.ndarray:

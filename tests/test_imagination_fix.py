@@ -406,7 +406,8 @@ def test_a_diagonal_draw_leaks_from_clouds_whose_dimensions_move_together():
     """draw_accuracy: a perfect M's diagonal Gaussian drawn from two macrostates' clouds, read
     back by a classifier that reads every cloud point right. Round clouds: every draw right.
     Clouds stretched along y = x on either side of it (V's dimensions moving together from image
-    to image): the diagonal Gaussian ignores the correlation and about half its draws cross."""
+    to image): the diagonal Gaussian ignores the correlation and about half its draws cross; a
+    mixture of five diagonal components follows the line and crosses far less."""
     from imagine.envs.gesture_puzzle.rules import all_macrostates
     from imagine.envs.gesture_puzzle.vision_report import draw_accuracy
 
@@ -421,10 +422,13 @@ def test_a_diagonal_draw_leaks_from_clouds_whose_dimensions_move_together():
     round_clouds = 5 * side + 0.05 * torch.randn(1000, 2, generator=g)
     stretched = side + torch.randn(1000, 1, generator=g) * torch.tensor([1.0, 1.0])
     assert (classify(stretched).numpy() == states).all()  # the clouds themselves are read right
-    assert draw_accuracy(round_clouds, states, classify) == {"scale_1": 1.0, "scale_0.5": 1.0}
+    assert draw_accuracy(round_clouds, states, classify) == {
+        "scale_1": 1.0, "scale_0.5": 1.0, "components_5": 1.0}  # fmt: skip
     leaky = draw_accuracy(stretched, states, classify)
     assert 0.4 < leaky["scale_1"] < 0.7
     assert leaky["scale_1"] < leaky["scale_0.5"] < 0.9  # a lower temperature leaks less
+    # five diagonal components share out each stretched cloud along its line: M's own form
+    assert leaky["components_5"] > leaky["scale_0.5"]
 
 
 @pytest.mark.parametrize("model", ["true", "true_mean"])

@@ -1,10 +1,12 @@
-"""The bound on M's draws (scripts/m_sample_bound.py): its mixture fit recovers a known
-mixture, and the draws of a mixture follow its weights, so the "5-component" row is what an M
-of that form fitted to each cloud would draw."""
+"""The bound on M's draws (`imagine vae report`, scripts/m_sample_bound.py): the mixture fit
+recovers a known mixture, and the draws of a mixture follow its weights, so the "5 diagonal
+components" row is what an M of that form fitted to each cloud would draw."""
 
 from __future__ import annotations
 
 import torch
+
+from imagine.envs.gesture_puzzle.vision_report import diagonal_mixture, mixture_draws
 
 
 def two_clouds(groups: int, n: int, generator: torch.Generator) -> torch.Tensor:
@@ -16,10 +18,9 @@ def two_clouds(groups: int, n: int, generator: torch.Generator) -> torch.Tensor:
     return centre + scale * torch.randn(groups, n, 2, generator=generator)
 
 
-def test_diagonal_mixture_recovers_two_components(load_script):
-    bound = load_script("m_sample_bound")
+def test_diagonal_mixture_recovers_two_components():
     x = two_clouds(4, 2000, torch.Generator().manual_seed(0))
-    weight, mean, var = bound.diagonal_mixture(x, 2)
+    weight, mean, var = diagonal_mixture(x, 2)
     order = mean[..., 0].argsort(-1)  # the component at -3 first
     weight = weight.gather(1, order)
     mean = mean.gather(1, order[..., None].expand(-1, -1, 2))
@@ -30,12 +31,11 @@ def test_diagonal_mixture_recovers_two_components(load_script):
                           atol=0.04)  # fmt: skip
 
 
-def test_mixture_draws_follow_the_weights_and_components(load_script):
-    bound = load_script("m_sample_bound")
+def test_mixture_draws_follow_the_weights_and_components():
     weight = torch.tensor([[0.25, 0.75]])
     mean = torch.tensor([[[-5.0], [5.0]]])
     var = torch.tensor([[[0.01], [0.04]]])
-    draws = bound.mixture_draws(weight, mean, var, 20000, torch.Generator().manual_seed(1))
+    draws = mixture_draws(weight, mean, var, 20000, torch.Generator().manual_seed(1))
     assert draws.shape == (1, 20000, 1)
     low = draws[..., 0] < 0
     assert abs(low.float().mean().item() - 0.25) < 0.015

@@ -171,7 +171,8 @@ def test_vae_commands(tmp_path):
     assert "MLP probe accuracy: hand" in done.stdout and "test KL per image" in done.stdout
     assert "linear probe accuracy: macrostate" in done.stdout
     assert "active dimensions" in done.stdout and "KL per dimension" in done.stdout
-    assert "right draws, best diagonal M, x 0.5" in done.stdout
+    assert "right draws, 1 diagonal comp., x 0.5" in done.stdout
+    assert "right draws, 5 diagonal comps." in done.stdout
     for name in ("reconstructions.png", "traversals.png", "report.json"):
         assert (run / name).is_file()
     done = subprocess.run([IMAGINE, "vae", "report", str(tmp_path / "none")], capture_output=True,

@@ -289,7 +289,10 @@ def vae_report(
             label = "MLP probe" if probe == "classifier" else "linear probe"
             table.add_row(f"{label} accuracy: {name}", f"{100 * value:.2f}%")
     for name, value in report["diagonal_draw_accuracy"].items():
-        label = f"right draws, best diagonal M, x {name.removeprefix('scale_')}"
+        if name.startswith("scale_"):  # fitted to each macrostate's cloud of V's means
+            label = f"right draws, 1 diagonal comp., x {name.removeprefix('scale_')}"
+        else:
+            label = f"right draws, {name.removeprefix('components_')} diagonal comps."
         table.add_row(label, f"{100 * value:.1f}%")
     if agent is not None:
         from imagine.envs.gesture_puzzle.vision_report import agent_model_accuracy

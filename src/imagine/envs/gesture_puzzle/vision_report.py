@@ -4,8 +4,9 @@ Writes ``reconstructions.png`` (test images beside their reconstructions, each o
 as its three strips side by side, as the scene), ``traversals.png`` (one row per latent
 dimension, that dimension swept from -3 to +3 around a test image's mean) and ``report.json``
 with the test reconstruction loss and KL per image and the latent classifier's accuracy on fresh
-test images (a seed V never saw), per cube arrow and for the hand, and how often a draw of a
-perfect M with diagonal Gaussians can be right in this V's latent space (:func:`draw_accuracy`).
+test images (a seed V never saw), per cube arrow and for the hand, and how often a draw of an
+M fitted to V's clouds, with one diagonal Gaussian or with as many diagonal components as M
+has, lands on the right macrostate in this V's latent space (:func:`draw_accuracy`).
 """
 
 from __future__ import annotations
@@ -127,42 +128,96 @@ def macrostate_separation(mu: torch.Tensor, states: np.ndarray) -> dict[str, Any
 DRAW_SCALES = (1.0, 0.5)
 """Scales of the fitted Gaussians' standard deviations in :func:`draw_accuracy`."""
 
+DRAW_COMPONENTS = 5
+"""Components of the diagonal mixture fitted to each cloud in :func:`draw_accuracy`: M's
+``n_components``."""
+
+
+def diagonal_mixture(
+    x: torch.Tensor, k: int, iterations: int = 200, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per group of points x (G, N, D) a k-component diagonal Gaussian mixture fitted by
+    expectation-maximization (a local maximum of the likelihood; means started at k distinct
+    points of the group): weights (G, k), means (G, k, D), variances (G, k, D)."""
+    groups, n, d = x.shape
+    generator = torch.Generator().manual_seed(seed)
+    start = torch.stack([torch.randperm(n, generator=generator)[:k] for _ in range(groups)])
+    mean = x.gather(1, start[..., None].expand(groups, k, d)).clone()
+    var = x.var(1, keepdim=True).expand(groups, k, d).clone()
+    weight = torch.full((groups, k), 1.0 / k)
+    for _ in range(iterations):
+        log_p = -0.5 * ((x[:, :, None] - mean[:, None]).square() / var[:, None]
+                        + var[:, None].log()).sum(-1) + weight.log()[:, None]  # fmt: skip
+        resp = torch.softmax(log_p, -1)  # (G, N, k): E step
+        mass = resp.sum(1) + 1e-8  # M step
+        weight = mass / n
+        mean = resp.transpose(1, 2) @ x / mass[..., None]
+        var = (resp.transpose(1, 2) @ x.square() / mass[..., None] - mean.square()).clamp(min=1e-5)
+    return weight, mean, var
+
+
+def mixture_draws(
+    weight: torch.Tensor,
+    mean: torch.Tensor,
+    var: torch.Tensor,
+    n: int,
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """n draws (G, n, D) from each group's diagonal mixture: a component by weight, then its
+    Gaussian."""
+    groups, _, d = mean.shape
+    k = torch.multinomial(weight, n, replacement=True, generator=generator)[..., None]
+    k = k.expand(groups, n, d)
+    noise = torch.randn(groups, n, d, generator=generator)
+    return mean.gather(1, k) + var.gather(1, k).sqrt() * noise
+
 
 def draw_accuracy(
     mu: torch.Tensor,
     states: np.ndarray,
     classify,
     scales: tuple[float, ...] = DRAW_SCALES,
+    components: int = DRAW_COMPONENTS,
     seed: int = 0,
 ) -> dict[str, float]:
-    """How often a draw of M *can* be right with this V, however well M is trained.
+    """How often a draw of an M fitted to V's clouds lands on the right macrostate.
 
-    M's targets are V's means of fresh images of the next state, so even a perfect M's
-    component for a macrostate is a Gaussian of that macrostate's cloud of means, diagonal as
-    M's components are. Per macrostate, fit that Gaussian (mean and standard deviation per
-    dimension) to ``mu``, draw as many latents from it (standard deviations times each of
-    ``scales``: 1 is M's draw, below 1 a draw at a lower temperature) and read them back with
-    ``classify`` ((N, d) latents to (N, k) macrostates): the share read as the right one. A
-    cloud that is not axis-aligned (V's dimensions moving together from image to image) leaks
-    into its neighbours under a diagonal Gaussian, which the most likely state never does."""
+    M's targets are V's means of fresh images of the next state, so a perfect M's prediction
+    for a macrostate is a density of that macrostate's cloud of means. Per macrostate, fit to
+    ``mu`` one diagonal Gaussian (mean and standard deviation per dimension; ``scale_s``: its
+    standard deviations times each of ``scales``, 1 a plain draw, below 1 a draw at a lower
+    temperature) and a ``components``-component diagonal mixture (:func:`diagonal_mixture`;
+    ``components_k``: M's form, whose components may share out one cloud; on clouds of at
+    least 2k points, NaN without any), draw as many latents
+    from each and read them back with ``classify`` ((N, d) latents to (N, k) macrostates): the
+    share read as the right one. A cloud that is not axis-aligned (V's dimensions moving
+    together from image to image) leaks into its neighbours under one diagonal Gaussian, which
+    the most likely state never does and a mixture of several does less."""
     from imagine.envs.gesture_puzzle.rules import macrostate_index
 
     index = torch.as_tensor(macrostate_index(states))
     generator = torch.Generator().manual_seed(seed)
-    draws = {scale: [] for scale in scales}
-    truth = []
+    mixing = torch.Generator().manual_seed(seed + 1)  # leaves the Gaussians' draws as they were
+    mixed = f"components_{components}"
+    draws: dict[str, list[torch.Tensor]] = {f"scale_{s:g}": [] for s in scales} | {mixed: []}
+    truth: dict[str, list[np.ndarray]] = {key: [] for key in draws}
     for i in index.unique():
-        cloud = mu[index == i]
+        cloud, shown = mu[index == i], states[(index == i).numpy()]
         if len(cloud) < 2:
             continue
         noise = torch.randn(cloud.shape, generator=generator)
         for scale in scales:
-            draws[scale].append(cloud.mean(0) + scale * cloud.std(0) * noise)
-        truth.append(states[(index == i).numpy()])
-    truth = np.concatenate(truth)
+            draws[f"scale_{scale:g}"].append(cloud.mean(0) + scale * cloud.std(0) * noise)
+            truth[f"scale_{scale:g}"].append(shown)
+        if len(cloud) >= 2 * components:  # a mixture needs a few points per component
+            mixture = diagonal_mixture(cloud[None], components, seed=seed)
+            draws[mixed].append(mixture_draws(*mixture, len(cloud), mixing)[0])
+            truth[mixed].append(shown)
     return {
-        f"scale_{scale:g}": float((classify(torch.cat(z)).numpy() == truth).all(-1).mean())
-        for scale, z in draws.items()
+        key: float((classify(torch.cat(z)).numpy() == np.concatenate(truth[key])).all(-1).mean())
+        if z
+        else float("nan")
+        for key, z in draws.items()
     }
 
 
