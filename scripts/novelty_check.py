@@ -23,6 +23,12 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
   ones on never-visited pairs (ties): the never-visited placed between the two;
 - the AUROC of disagreement and support *within* the never-visited pairs.
 
+``--stack``: can weights do better than the sum of ranks? The three signals' within-run ranks
+(scaled to [0, 1]) are combined by a logistic regression fitted on the other runs' transitions
+and their labels, and judged on the run left out (leave one run out): fixed weights, learned
+once from a study, would be label-free where they are used. Also with the pairwise products
+of the ranks as features.
+
 ``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (the
 agent's networks, batches and number of updates, but all on the final M_R rather than online)
 with a *randomized prior
@@ -72,6 +78,43 @@ def visits(agent, z: torch.Tensor, action: torch.Tensor) -> np.ndarray:
 def half_least(scores: np.ndarray) -> np.ndarray:
     """The half of the transitions with the lowest scores (a gate that accepts half)."""
     return np.argsort(scores, kind="stable")[: len(scores) // 2]
+
+
+def logistic_fit(x: np.ndarray, y: np.ndarray, l2: float = 1e-3, steps: int = 50) -> np.ndarray:
+    """Weights (intercept last) of a logistic regression of y on x, by Newton's method on the
+    L2-penalized log-likelihood."""
+    x = np.column_stack([x, np.ones(len(x))])
+    w = np.zeros(x.shape[1])
+    for _ in range(steps):
+        p = 1.0 / (1.0 + np.exp(-x @ w))
+        grad = x.T @ (p - y) + l2 * w
+        hessian = (x * (p * (1 - p))[:, None]).T @ x + l2 * np.eye(len(w))
+        step = np.linalg.solve(hessian, grad)
+        w -= step
+        if np.abs(step).max() < 1e-10:
+            break
+    return w
+
+
+def stack_features(ranks: np.ndarray, products: bool) -> np.ndarray:
+    """Features of the combiner: the signals' within-run ranks in [0, 1] (N, S), with their
+    pairwise products if ``products``."""
+    if not products:
+        return ranks
+    pairs = [ranks[:, i] * ranks[:, j] for i in range(ranks.shape[1])
+             for j in range(i + 1, ranks.shape[1])]  # fmt: skip
+    return np.column_stack([ranks, *pairs])
+
+
+def stacked_aurocs(ranks: list[np.ndarray], wrong: list[np.ndarray], products: bool) -> np.ndarray:
+    """Leave one run out: a logistic combiner fitted on the other runs, its AUROC on this one."""
+    out = []
+    for i in range(len(ranks)):
+        rest = [j for j in range(len(ranks)) if j != i]
+        w = logistic_fit(np.concatenate([stack_features(ranks[j], products) for j in rest]),
+                         np.concatenate([wrong[j] for j in rest]).astype(float))  # fmt: skip
+        out.append(auroc(stack_features(ranks[i], products) @ w[:-1], wrong[i]))
+    return np.array(out)
 
 
 def oracle_bound(seen: np.ndarray, wrong: np.ndarray) -> float:
@@ -136,7 +179,9 @@ def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldMo
     return population.eval()
 
 
-def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+def check(
+    run: Path, starts: int
+) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
     agent = load_agent(run)
     if agent.memory_starts is None or agent.config.model_ensemble < 2:
         raise SystemExit(f"error: {run} holds no M_R or no ensemble of M")
@@ -166,7 +211,8 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
         "support, never visited": auroc(support[unseen], wrong[unseen]),
     }
-    return out, seen, wrong
+    scaled = np.column_stack([ranks[k] / len(wrong) for k in ("d", "s", "l")])
+    return out, seen, wrong, scaled
 
 
 def main() -> None:
@@ -174,13 +220,15 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--starts", type=int, default=100, help="real start states per agent")
     parser.add_argument("--priors", default="", help="betas of fresh prior ensembles, e.g. 0,1")
+    parser.add_argument("--stack", action="store_true", help="fitted weights, leave one run out")
     args = parser.parse_args()
     torch.set_num_threads(1)
     betas = [float(b) for b in args.priors.split(",") if b]
-    rows, seen_all, wrong_all, prior_rows = [], [], [], []
+    rows, seen_all, wrong_all, prior_rows, ranks_all = [], [], [], [], []
     for run in args.runs:
-        out, seen, wrong = check(run, args.starts)
+        out, seen, wrong, ranks = check(run, args.starts)
         rows.append(out)
+        ranks_all.append(ranks)
         seen_all.append(seen)
         wrong_all.append(wrong)
         print(run, ", ".join(f"{k} {v:.3f}" for k, v in out.items()), flush=True)
@@ -207,6 +255,13 @@ def main() -> None:
         x = np.array([row[key] for row in rows])
         print(f"| {key} | {np.nanmean(x):.3f} ({np.nanstd(x, ddof=1):.3f}) | "
               f"{np.nanmin(x):.3f}-{np.nanmax(x):.3f} |")  # fmt: skip
+    if args.stack and len(rows) > 1:
+        print("\n| combiner of the three ranks, leave one run out | AUROC mean (std) | min-max |")
+        print("| --- | --- | --- |")
+        for name, products in (("logistic", False), ("logistic with pairwise products", True)):
+            x = stacked_aurocs(ranks_all, wrong_all, products)
+            print(f"| {name} | {x.mean():.3f} ({x.std(ddof=1):.3f}) | "
+                  f"{x.min():.3f}-{x.max():.3f} |")  # fmt: skip
     if prior_rows:
         x = np.array(prior_rows)  # (runs, betas, 2)
         print("\n| fresh ensemble, prior beta | disagreement AUROC | imagined right |")

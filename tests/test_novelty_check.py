@@ -36,3 +36,21 @@ def test_a_prior_of_beta_zero_is_the_plain_ensemble(load_script):
     modes = tilted.member_modes(z, action)
     assert not torch.allclose(modes, plain.member_modes(z, action))
     assert (modes[0, 0] - modes[0, 1]).abs().max() > 1e-3  # members' priors differ
+
+
+def test_the_stacked_combiner_learns_which_signal_carries_the_labels(load_script):
+    """Leave one run out: weights fitted on runs where only the second signal tells the wrong
+    transitions score each held-out run as that signal does."""
+    novelty = load_script("novelty_check")
+    rng = np.random.default_rng(0)
+    ranks, wrong = [], []
+    for _ in range(3):
+        x = rng.random((300, 3))
+        wrong.append(rng.random(300) < x[:, 1])  # the second signal is the error's probability
+        ranks.append(x)
+    weights = novelty.logistic_fit(np.concatenate(ranks), np.concatenate(wrong).astype(float))
+    assert weights[1] > 2.0 and abs(weights[0]) < 1.0 and abs(weights[2]) < 1.0
+    held_out = novelty.stacked_aurocs(ranks, wrong, products=False)
+    alone = np.array([auroc(r[:, 1], w) for r, w in zip(ranks, wrong, strict=True)])
+    assert np.allclose(held_out, alone, atol=0.02)
+    assert novelty.stack_features(ranks[0], products=True).shape == (300, 6)
