@@ -179,9 +179,7 @@ def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldMo
     return population.eval()
 
 
-def check(
-    run: Path, starts: int
-) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
+def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
     agent = load_agent(run)
     if agent.memory_starts is None or agent.config.model_ensemble < 2:
         raise SystemExit(f"error: {run} holds no M_R or no ensemble of M")
