@@ -5,6 +5,7 @@ import csv
 import dataclasses
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -73,6 +74,8 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     again = reproduce(out, "--tasks", "original,hard", "--budgets", "20,40")
     assert again.returncode == 0, again.stderr
     assert "8 of 8 runs already finished" in again.stderr
+    assert "training V" in done.stderr and "training V" not in again.stderr
+    assert re.search(r"V \(smoke preset\) already\s+trained\s+in.*read\s*back", again.stderr, re.S)
     assert evaluation_times(out) == before
 
 

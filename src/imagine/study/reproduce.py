@@ -159,12 +159,17 @@ def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -
     if config.vae_run is not None:
         return config.vae_run
     from imagine.config import vision_preset
-    from imagine.models.vision_training import train_vae
+    from imagine.models.vision_training import resume_point, train_vae
 
     folder = out / "vae"
     vision = vision_preset(config.preset)
-    log(f"training V ({config.preset} preset) into {folder}")
-    train_vae(vision, folder, device=config.device)
+    done = resume_point(folder, vision)
+    if done == vision.epochs:
+        log(f"V ({config.preset} preset) already trained in {folder}: read back")
+    else:
+        resumed = f", resuming after epoch {done} of {vision.epochs}" if done else ""
+        log(f"training V ({config.preset} preset) into {folder}{resumed}")
+        train_vae(vision, folder, device=config.device)
     if not (folder / "reconstructions.png").is_file():
         from imagine.envs.gesture_puzzle.vision_report import report_run
 
