@@ -7,7 +7,8 @@ evaluate` judges M (from each macrostate's reference latent, read back by V's cl
 which the agent never uses): draws over the task's non-terminal transitions (``--draws`` per
 transition), the mode over the same and over the transitions from terminal states
 (generalization), each raw and snapped; and how many of the true next states appear in M_R
-at all.
+at all. Last, V's spacing: the distance from each macrostate's reference latent to the
+nearest other macrostate's (the first run's V).
 
     .venv/bin/python scripts/m_snap.py runs/study23/s93/hard-{0,1,2,3,4} [--draws 20]
 """
@@ -71,6 +72,12 @@ def check(run: Path, draws: int) -> dict[str, float]:
     }
 
 
+def nearest_other(latents: torch.Tensor) -> torch.Tensor:
+    """Per row, the distance to the nearest other row."""
+    distance = torch.cdist(latents, latents)
+    return distance.fill_diagonal_(float("inf")).min(-1).values
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -85,6 +92,11 @@ def main() -> None:
     for key in rows[0]:
         x = np.array([row[key] for row in rows])
         print(f"| {key} | {100 * x.mean():.1f} ({100 * x.std(ddof=1) if len(x) > 1 else 0:.1f}) |")
+    spacing = nearest_other(load_agent(args.runs[0]).encoder.state_latents())
+    print(
+        f"\nV's reference latents, distance to the nearest other macrostate's: min "
+        f"{spacing.min():.2f}, median {spacing.median():.2f}, max {spacing.max():.2f}"
+    )
 
 
 if __name__ == "__main__":

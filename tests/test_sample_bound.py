@@ -48,3 +48,5 @@ def test_snapping_replaces_each_point_by_its_nearest_bank_row(load_script):
     bank = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 5.0]])
     points = torch.tensor([[0.4, 0.1], [0.6, -0.2], [0.1, 3.0]])
     assert torch.equal(snap(points, bank), bank[[0, 1, 2]])
+    nearest = load_script("m_snap").nearest_other(bank)
+    assert torch.allclose(nearest, torch.tensor([1.0, 1.0, 5.0]))
