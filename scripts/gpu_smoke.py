@@ -18,11 +18,13 @@ import time
 from pathlib import Path
 
 from imagine.cli import evaluate_agent
+from imagine.config import AGENT_PRESETS
 from imagine.study.reproduce import StudyConfig, reproduce
 
-FAST_AUGMENTED = dict(model_ensemble=5, imagination_gate="mask", belief="filtered",
-                      value_expansion=2, imagination_from="memory", imagination_draw="mode",
-                      model_residual=True)  # fmt: skip
+FAST_AUGMENTED = {key: AGENT_PRESETS["fast"][key] for key in (
+    "model_ensemble", "imagination_gate", "belief", "value_expansion", "imagination_from",
+    "imagination_draw", "model_residual")}  # fmt: skip
+"""The `fast` preset's own values of the parts checked, set on the `smoke` preset."""
 
 
 def main() -> None:
