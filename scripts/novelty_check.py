@@ -14,20 +14,26 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
 - lookup: the distance from M's next state to what the nearest real transition with the
   same action says it is (`scripts/uncertainty_check.py`), a non-parametric model's
   disagreement with M;
-- sums of ranks: disagreement's rank + support's rank, support's + lookup's, and all three
+- fit: M's own error where it has data: ||M(mu_j, a) - next_mu_j|| for the real transition j
+  with the same action whose start mu_j is nearest z (M's point prediction, the members' mean
+  mode): how well M has learned the (state, action) pair it is asked about, a pair seen once
+  and not yet fitted showing a large error;
+- cycle: ||z' - E(D(z'))||, how far V moves M's next state when its decoder draws it and its
+  encoder reads the drawing back (`scripts/uncertainty_check.py`);
+- sums of ranks: disagreement's rank + support's rank, support's + lookup's, all three
   (and how often the half of the transitions with the lowest sum of all three is right: what a
-  gate accepting half would keep);
+  gate accepting half would keep), and all five;
 - visits (oracle): minus the visit count, a perfect novelty detector (it uses the labels);
 - oracle bound: the best AUROC of a detector that orders the visited transitions perfectly
   (every wrong one above every right one) but cannot tell M's right guesses from its wrong
   ones on never-visited pairs (ties): the never-visited placed between the two;
 - the AUROC of disagreement and support *within* the never-visited pairs.
 
-``--stack``: can weights do better than the sum of ranks? The three signals' within-run ranks
+``--stack``: can weights do better than the sum of ranks? The signals' within-run ranks
 (scaled to [0, 1]) are combined by a logistic regression fitted on the other runs' transitions
 and their labels, and judged on the run left out (leave one run out): fixed weights, learned
 once from a study, would be label-free where they are used. Also with the pairwise products
-of the ranks as features.
+of the ranks as features; with the first three signals and with all five.
 
 ``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (the
 agent's networks, batches and number of updates, but all on the final M_R rather than online)
@@ -61,7 +67,7 @@ from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 sys.path.insert(0, str(Path(__file__).parent))
 from m_offline import real_memory
-from uncertainty_check import lookup_distance
+from uncertainty_check import cycled, lookup_distance
 
 BINS = ((0, 0), (1, 1), (2, 3), (4, 9), (10, None))
 
@@ -73,6 +79,19 @@ def visits(agent, z: torch.Tensor, action: torch.Tensor) -> np.ndarray:
     pairs = macrostate_index(agent.encoder.classify(held_mu).numpy()) * N_ACTIONS
     counts = np.bincount(pairs + held_action.numpy(), minlength=N_MACROSTATES * N_ACTIONS)
     return counts[macrostate_index(agent.encoder.classify(z).numpy()) * N_ACTIONS + action.numpy()]
+
+
+@torch.no_grad()
+def fit_error(agent, r: dict[str, torch.Tensor], memory_mu: torch.Tensor,
+              memory_action: torch.Tensor, memory_next: torch.Tensor) -> np.ndarray:  # fmt: skip
+    """Per imagined transition, M's error ||M(mu_j, a) - next_mu_j|| on the real transition j
+    with the same action whose start mu_j is nearest z."""
+    distance = torch.cdist(r["z"], memory_mu)
+    distance = distance.masked_fill(r["action"].unsqueeze(1) != memory_action.unsqueeze(0), 1e9)
+    j = distance.argmin(-1)
+    model = agent.model.eval()
+    predicted = model.most_likely(memory_mu[j], memory_action[j])
+    return (predicted - memory_next[j]).norm(dim=-1).numpy()
 
 
 def half_least(scores: np.ndarray) -> np.ndarray:
@@ -191,8 +210,11 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
     memory = real_memory(run, agent.encoder.latent_dim)
     held = memory.state_dict("real")  # M_R's filled part
     lookup = lookup_distance(r, held["real.mu"], held["real.action"], held["real.next_mu"])
-    ranks = {k: rankdata(v) for k, v in (("d", disagreement), ("s", support), ("l", lookup))}
-    unseen = seen == 0
+    fit = fit_error(agent, r, held["real.mu"], held["real.action"], held["real.next_mu"])
+    cycle = (r["next_z"] - cycled(agent.encoder, r["next_z"])).norm(dim=-1).numpy()
+    signals = (("d", disagreement), ("s", support), ("l", lookup), ("f", fit), ("c", cycle))
+    ranks = {k: rankdata(v) for k, v in signals}
+    unseen, few = seen == 0, (seen >= 1) & (seen <= 3)
     out = {
         "wrong": float(wrong.mean()),
         "disagreement": auroc(disagreement, wrong),
@@ -201,6 +223,10 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "disagreement + support (ranks)": auroc(ranks["d"] + ranks["s"], wrong),
         "support + lookup (ranks)": auroc(ranks["s"] + ranks["l"], wrong),
         "all three (ranks)": auroc(ranks["d"] + ranks["s"] + ranks["l"], wrong),
+        "fit (M's error at the nearest real start)": auroc(fit, wrong),
+        "cycle (V's decode-encode)": auroc(cycle, wrong),
+        "all five (ranks)": auroc(sum(ranks.values()), wrong),
+        "support + fit (ranks)": auroc(ranks["s"] + ranks["f"], wrong),
         "right, the half least suspect by all three (not an AUROC)": float(
             right[half_least(ranks["d"] + ranks["s"] + ranks["l"])].mean()
         ),
@@ -208,8 +234,9 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "oracle bound": oracle_bound(seen, wrong),
         "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
         "support, never visited": auroc(support[unseen], wrong[unseen]),
+        "fit, visited 1-3 times": auroc(fit[few], wrong[few]),
     }
-    scaled = np.column_stack([ranks[k] / len(wrong) for k in ("d", "s", "l")])
+    scaled = np.column_stack([ranks[k] / len(wrong) for k in ("d", "s", "l", "f", "c")])
     return out, seen, wrong, scaled
 
 
@@ -254,10 +281,13 @@ def main() -> None:
         print(f"| {key} | {np.nanmean(x):.3f} ({np.nanstd(x, ddof=1):.3f}) | "
               f"{np.nanmin(x):.3f}-{np.nanmax(x):.3f} |")  # fmt: skip
     if args.stack and len(rows) > 1:
-        print("\n| combiner of the three ranks, leave one run out | AUROC mean (std) | min-max |")
+        print("\n| combiner of the ranks, leave one run out | AUROC mean (std) | min-max |")
         print("| --- | --- | --- |")
-        for name, products in (("logistic", False), ("logistic with pairwise products", True)):
-            x = stacked_aurocs(ranks_all, wrong_all, products)
+        combiners = [(n, s, p) for n, s in (("three", 3), ("five", 5))
+                     for p in (False, True)]  # fmt: skip
+        for signals, columns, products in combiners:
+            name = f"logistic{' with pairwise products' if products else ''}, {signals} signals"
+            x = stacked_aurocs([r[:, :columns] for r in ranks_all], wrong_all, products)
             print(f"| {name} | {x.mean():.3f} ({x.std(ddof=1):.3f}) | "
                   f"{x.min():.3f}-{x.max():.3f} |")  # fmt: skip
     if prior_rows:
