@@ -54,3 +54,22 @@ def test_the_stacked_combiner_learns_which_signal_carries_the_labels(load_script
     alone = np.array([auroc(r[:, 1], w) for r, w in zip(ranks, wrong, strict=True)])
     assert np.allclose(held_out, alone, atol=0.02)
     assert novelty.stack_features(ranks[0], products=True).shape == (300, 6)
+
+
+def test_fit_is_ms_error_at_the_nearest_real_start_with_the_same_action(load_script):
+    from types import SimpleNamespace
+
+    novelty = load_script("novelty_check")
+    torch.manual_seed(0)
+    model = WorldModel(8, ensemble=2, dropout=0.0, residual=True, reward_hidden=32).eval()
+    mu = torch.stack([torch.zeros(8), torch.full((8,), 5.0), torch.full((8,), 0.1)])
+    action = torch.tensor([1, 1, 2])  # the third start is nearest z = 0 but has another action
+    with torch.no_grad():
+        predicted = model.most_likely(mu, action)
+    shift = torch.zeros(3, 8)
+    shift[0, 0] = 3.0  # M is off by 3 at the first start, exact at the others
+    next_mu = predicted + shift
+    r = {"z": torch.stack([torch.full((8,), 0.05), torch.full((8,), 4.9)]),
+         "action": torch.tensor([1, 1])}  # fmt: skip
+    fit = novelty.fit_error(SimpleNamespace(model=model), r, mu, action, next_mu)
+    assert np.allclose(fit, [3.0, 0.0], atol=1e-5)
