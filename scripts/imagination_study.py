@@ -38,6 +38,7 @@ PAPER_READING = {"model_latents": "sample", "imagination_draw": "sample",
 HANDICAP = {"imagination_draw": "mode", "model_updates": 1, "model_batch": 32,
             "imagination_start": 100}  # fmt: skip
 TRUST = {"model_ensemble": 5, "imagination_gate": "mask", "imagination_adaptive": True}
+CLOUD = {"model_cloud_head": 128, "model_latents": "mu"}  # M's cloud head on V's means (round 26)
 SUPPORT_TRUST = {"model_ensemble": 1, "imagination_gate": "mask",
                  "imagination_uncertainty": "support", "imagination_adaptive": True}  # fmt: skip
 FORMER_FAST = {"imagination_start": 1000, "imagination_from": "current", "reward_updates": 0,
@@ -556,6 +557,12 @@ SETTINGS |= {
     "augmented, as s93 with value expansion through the members' mean mode": (
         "augmented",
         {**S86, **TRUST, "imagination_adaptive": False, "value_expansion_members": "mean"},
+    ),
+    # round 26: M's mixture from a cloud head of its predicted point (model_cloud_head), on
+    # V's means (offline its draws are right 79% against the plain M's 59-65%)
+    "augmented, as s93 with M's cloud head, learning from V's means": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, **CLOUD},
     ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}

@@ -417,6 +417,13 @@ class AgentConfig:
     more outputs per component). A diagonal Gaussian ignores how V's dimensions move together
     from image to image, which bounds how often M's draws land on the right macrostate (README,
     issue 14: 80.8% for a perfect diagonal M with the fast V, 95.1% with a full covariance)."""
+    model_cloud_head: int = 0
+    """0: the paper's MDN (each (z, a) gets its own mixture from the body's features). N > 0: a
+    cloud head of N x N units (:class:`~imagine.models.world_model.MDN`): the body predicts one
+    next point c = z + f(z, a) and the mixture around it (weights, offsets, scales) is a
+    function of c alone, learned from every transition into the same region of V's latent
+    space (README, issue 14 round 26). Needs model_residual, a diagonal covariance and
+    dropout-fitted scales."""
     model_scales: str = "dropout"
     """Which network the scales of M's predictions are fitted on: dropout (the paper: the
     network with dropout's masks, beside its means) or clean (second scale heads, fitted by
@@ -541,6 +548,17 @@ class AgentConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
+        if self.model_cloud_head < 0:
+            raise ConfigError(f"agent.model_cloud_head must be >= 0, got {self.model_cloud_head}")
+        if self.model_cloud_head and not (
+            self.model_residual
+            and self.model_covariance == "diagonal"
+            and self.model_scales == "dropout"
+        ):
+            raise ConfigError(
+                "agent.model_cloud_head needs model_residual true, model_covariance diagonal "
+                "and model_scales dropout"
+            )
         if self.value_expansion and self.method != "augmented":
             raise ConfigError("agent.value_expansion needs M: it is for method augmented")
         if not 0 <= self.value_expansion <= 3:

@@ -82,7 +82,8 @@ def new_networks(
                        reward_dropout=config.reward_dropout,
                        ensemble=config.model_ensemble,
                        covariance=config.model_covariance,
-                       scales=config.model_scales)  # fmt: skip
+                       scales=config.model_scales,
+                       cloud_hidden=config.model_cloud_head)  # fmt: skip
     return controller, model
 
 

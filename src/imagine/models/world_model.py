@@ -163,7 +163,14 @@ def mixture_nll(mixture: Mixture, target: torch.Tensor) -> torch.Tensor:
 
 
 class MDN(nn.Module):
-    """The mixture density network over next latent states."""
+    """The mixture density network over next latent states.
+
+    With ``cloud_hidden`` N > 0 (``AgentConfig.model_cloud_head``; residual and diagonal only)
+    the mixture is a function of one predicted point: the body predicts the change of state,
+    c = z + f(z, a), and a *cloud head* g of c alone (N x N ReLU units) gives the weights
+    pi_k(c), means c + o_k(c) and scales sigma_k(c). The spread of next latents around a
+    macrostate is that macrostate's (its images' variety in V), whichever (state, action) led
+    there, so every transition into it trains the same g (README, issue 14 round 26)."""
 
     def __init__(
         self,
@@ -177,16 +184,24 @@ class MDN(nn.Module):
         residual: bool = False,
         covariance: str = "diagonal",
         clean_scales: bool = False,
+        cloud_hidden: int = 0,
     ) -> None:
         super().__init__()
         if covariance not in COVARIANCES:
             raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
+        if cloud_hidden and not (residual and covariance == "diagonal" and not clean_scales):
+            raise ValueError("a cloud head needs a residual, diagonal MDN without clean scales")
         self.latent_dim, self.n_actions, self.n_components = latent_dim, n_actions, n_components
         self.min_sigma, self.residual = min_sigma, residual
         self.body = mlp([latent_dim + n_actions, *[hidden] * layers], dropout)
         self.body.append(nn.ReLU())
         if dropout > 0:
             self.body.append(nn.Dropout(dropout))
+        if cloud_hidden:  # the cloud head: the mixture is a function of one predicted point
+            self.point_head = nn.Linear(hidden, latent_dim)
+            self.cloud = mlp([latent_dim, cloud_hidden, cloud_hidden])
+            self.cloud.append(nn.ReLU())
+            hidden = cloud_hidden
         self.pi_head = nn.Linear(hidden, n_components)
         self.mu_head = nn.Linear(hidden, n_components * latent_dim)
         self.sigma_head = nn.Linear(hidden, n_components * latent_dim)
@@ -204,6 +219,12 @@ class MDN(nn.Module):
         """The mixture for latents (N, D) and integer actions (N,); in eval mode (no dropout)
         with the clean scale heads, where there are (``clean_scales``)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
+        if hasattr(self, "point_head"):
+            change = self.point_head(h)
+            h = self.cloud(z + change)
+            mu = self.mu_head(h) + change.repeat(1, self.n_components)
+            return mixture_from_heads(self.pi_head(h), mu, self.sigma_head(h), self.latent_dim,
+                                      self.min_sigma, z)  # fmt: skip
         clean = not self.training and hasattr(self, "clean_sigma_head")
         sigma = (self.clean_sigma_head if clean else self.sigma_head)(h)
         tril = None
@@ -311,6 +332,7 @@ class WorldModel(nn.Module):
         covariance: str = "diagonal",
         scales: str = "dropout",
         terminal_hidden: int = 256,
+        cloud_hidden: int = 0,
     ) -> None:
         super().__init__()
         if scales not in SCALE_FITS:
@@ -320,7 +342,8 @@ class WorldModel(nn.Module):
 
         def mdn() -> MDN:
             return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual,
-                       covariance=covariance, clean_scales=scales == "clean")  # fmt: skip
+                       covariance=covariance, clean_scales=scales == "clean",
+                       cloud_hidden=cloud_hidden)  # fmt: skip
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
@@ -382,6 +405,9 @@ class StackedMDN(nn.Module):
         super().__init__()
         # registered in MDN's parameter order (export_agent relies on it)
         self.body = StackedMLP([m.body for m in mdns], dropout, activate_last=True)
+        if hasattr(mdns[0], "point_head"):
+            self.point_head = StackedLinear([m.point_head for m in mdns])
+            self.cloud = StackedMLP([m.cloud for m in mdns], 0.0, activate_last=True)
         self.pi_head = StackedLinear([m.pi_head for m in mdns])
         self.mu_head = StackedLinear([m.mu_head for m in mdns])
         self.sigma_head = StackedLinear([m.sigma_head for m in mdns])
@@ -400,7 +426,11 @@ class StackedMDN(nn.Module):
         ``generators`` (one per row), else (the network that predicts) the clean scale heads
         where there are."""
         h = self.body(x, generators)
-        return self.heads(h, clean=generators is None and self.clean_scales)
+        if not hasattr(self, "point_head"):
+            return self.heads(h, clean=generators is None and self.clean_scales)
+        change = self.point_head(h)  # the cloud head (MDN's cloud_hidden)
+        pi, mu, sigma = self.heads(self.cloud(x[..., : change.shape[-1]] + change))
+        return pi, mu + change.repeat(1, 1, pi.shape[-1]), sigma
 
     def heads(self, h: torch.Tensor, clean: bool = False) -> tuple[torch.Tensor, ...]:
         """The heads on the body's features ``h``: weights, means, scales (and factors); with
