@@ -11,11 +11,12 @@ the mixture, weights pi_k(c), means c + o_k(c), scales sigma_k(c). Every transit
 macrostate then trains the same g near that macrostate's points.
 
 For each run (its final real memory M_R, V, task), trains a fresh plain MDN (M's own form: 3 x
-256 body, 5 diagonal components, change of state, no dropout) and a fresh cloud-head MDN in
-the same loop (Adam 1e-3, ``--updates`` batches of ``--batch`` from M_R, V's means as
-targets, seed 0), and prints M's accuracy as `imagine evaluate` measures it: the most likely
-next state and a draw on the non-terminal transitions, and the most likely next state from
-the terminal states M never trained on.
+256 body, 5 diagonal components, change of state, no dropout) and a fresh cloud-head MDN (the
+library's, ``MDN(cloud_hidden=N)``, as ``model_cloud_head: N`` builds it) in the same loop
+(Adam 1e-3, ``--updates`` batches of ``--batch`` from M_R, V's means as targets, seed 0), and
+prints M's accuracy as `imagine evaluate` measures it: the most likely next state and a draw on
+the non-terminal transitions, and the most likely next state from the terminal states M never
+trained on.
 
     .venv/bin/python scripts/m_cloud_head.py runs/study23/s93/hard-{0,1,2,3,4}
 """
@@ -29,39 +30,32 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from imagine.envs.gesture_puzzle.evaluation import model_accuracy
 from imagine.learning.agent import load_agent
-from imagine.models.world_model import MDN, Mixture, WorldModel, mixture_from_heads, mlp
+from imagine.models.world_model import MDN, Mixture, WorldModel, mixture_from_heads
 
 sys.path.insert(0, str(Path(__file__).parent))
 from m_offline import real_memory
 
 
-class CloudMDN(MDN):
-    """An MDN whose mixture depends on (z, a) only through its predicted point
-    c = z + f(z, a): pi_k, c + o_k and sigma_k are functions of c (the cloud head g)."""
-
-    def __init__(self, latent_dim: int, cloud_hidden: int = 128, dropout: float = 0.0,
-                 absolute: bool = False, **kwargs) -> None:  # fmt: skip
-        super().__init__(latent_dim, residual=True, dropout=dropout, **kwargs)
-        self.absolute = absolute
-        hidden, k = self.pi_head.in_features, self.n_components
-        self.point_head = nn.Linear(hidden, latent_dim)
-        self.cloud = mlp([latent_dim, cloud_hidden, cloud_hidden], 0.0)
-        self.cloud.append(nn.ReLU())
-        self.pi_head = nn.Linear(cloud_hidden, k)
-        self.mu_head = nn.Linear(cloud_hidden, k * latent_dim)
-        self.sigma_head = nn.Linear(cloud_hidden, k * latent_dim)
+class AbsoluteCloudMDN(MDN):
+    """The cloud head with absolute means g_k(c) instead of c + o_k(c) (``--absolute``): no
+    skip from the predicted point to the components."""
 
     def forward(self, z: torch.Tensor, action: torch.Tensor) -> Mixture:
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
-        point = z + self.point_head(h)
-        g = self.cloud(point)
+        g = self.cloud(z + self.point_head(h))
         return mixture_from_heads(self.pi_head(g), self.mu_head(g), self.sigma_head(g),
-                                  self.latent_dim, self.min_sigma,
-                                  None if self.absolute else point)  # fmt: skip
+                                  self.latent_dim, self.min_sigma)  # fmt: skip
+
+
+def cloud_head(latent_dim: int, width: int, dropout: float, components: int,
+               absolute: bool = False) -> MDN:  # fmt: skip
+    """The library's cloud-head MDN (``model_cloud_head``), or its ``--absolute`` variant."""
+    form = AbsoluteCloudMDN if absolute else MDN
+    return form(latent_dim, n_components=components, dropout=dropout, residual=True,
+                cloud_hidden=width)  # fmt: skip
 
 
 def train(mdn: MDN, memory, updates: int, batch: int, samples: bool) -> MDN:
@@ -105,9 +99,9 @@ def main() -> None:
     parser.add_argument("--samples", action="store_true", help="latents drawn from N(mu, sigma)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    k, p = args.components, args.dropout
+    k, p, width = args.components, args.dropout, args.cloud_hidden
     forms = {"plain MDN (M's form)": lambda d: MDN(d, n_components=k, dropout=p, residual=True),
-             "cloud head": lambda d: CloudMDN(d, args.cloud_hidden, p, args.absolute, n_components=k)}  # fmt: skip
+             "cloud head": lambda d: cloud_head(d, width, p, k, args.absolute)}  # fmt: skip
     results: dict[str, list[tuple[float, float, float]]] = {name: [] for name in forms}
     for run in args.runs:
         agent = load_agent(run)

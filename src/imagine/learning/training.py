@@ -41,7 +41,8 @@ class PopulationResult:
 
 
 TRANSFERRED = ("encoder", "vae_run", "latent_space", "n_components", "model_residual",
-               "model_ensemble")  # fmt: skip
+               "model_ensemble", "model_covariance", "model_scales",
+               "model_cloud_head")  # fmt: skip
 """What a run that starts M (``init_from``) must share with the agent: M's inputs and form."""
 
 
