@@ -564,6 +564,11 @@ SETTINGS |= {
         "augmented",
         {**S86, **TRUST, "imagination_adaptive": False, **CLOUD},
     ),
+    # s100's control: the plain MDN on V's means (is s100's difference the head's?)
+    "augmented, as s93 learning from V's means": (
+        "augmented",
+        {**S86, **TRUST, "imagination_adaptive": False, "model_latents": "mu"},
+    ),
 }
 SHORT = {name: f"s{i}" for i, name in enumerate(SETTINGS)}
 
