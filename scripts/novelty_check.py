@@ -67,7 +67,7 @@ from imagine.models.world_model import PopulationWorldModel, WorldModel
 
 sys.path.insert(0, str(Path(__file__).parent))
 from m_offline import real_memory
-from uncertainty_check import cycled, lookup_distance
+from uncertainty_check import cycled, lookup_distance, nearest_start
 
 BINS = ((0, 0), (1, 1), (2, 3), (4, 9), (10, None))
 
@@ -86,9 +86,7 @@ def fit_error(agent, r: dict[str, torch.Tensor], memory_mu: torch.Tensor,
               memory_action: torch.Tensor, memory_next: torch.Tensor) -> np.ndarray:  # fmt: skip
     """Per imagined transition, M's error ||M(mu_j, a) - next_mu_j|| on the real transition j
     with the same action whose start mu_j is nearest z."""
-    distance = torch.cdist(r["z"], memory_mu)
-    distance = distance.masked_fill(r["action"].unsqueeze(1) != memory_action.unsqueeze(0), 1e9)
-    j = distance.argmin(-1)
+    j = nearest_start(r, memory_mu, memory_action)
     model = agent.model.eval()
     predicted = model.most_likely(memory_mu[j], memory_action[j])
     return (predicted - memory_next[j]).norm(dim=-1).numpy()

@@ -37,6 +37,16 @@ from imagine.learning.agent import load_agent
 from imagine.learning.gate import support_distance
 
 
+def nearest_start(
+    r: dict[str, torch.Tensor], memory_mu: torch.Tensor, memory_action: torch.Tensor
+) -> torch.Tensor:
+    """Per imagined transition (z, a), the index j of the real transition with action a whose
+    start mu_j is nearest z."""
+    distance = torch.cdist(r["z"], memory_mu)
+    distance = distance.masked_fill(r["action"].unsqueeze(1) != memory_action.unsqueeze(0), 1e9)
+    return distance.argmin(-1)
+
+
 def lookup_distance(
     r: dict[str, torch.Tensor],
     memory_mu: torch.Tensor,
@@ -45,9 +55,7 @@ def lookup_distance(
 ) -> torch.Tensor:
     """Per imagined transition, ||z' - (next_mu_j + z - mu_j)|| for the real transition j with
     the same action whose start mu_j is nearest z."""
-    distance = torch.cdist(r["z"], memory_mu)
-    distance = distance.masked_fill(r["action"].unsqueeze(1) != memory_action.unsqueeze(0), 1e9)
-    j = distance.argmin(-1)
+    j = nearest_start(r, memory_mu, memory_action)
     return (r["next_z"] - (memory_next[j] + r["z"] - memory_mu[j])).norm(dim=-1)
 
 
