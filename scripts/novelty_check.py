@@ -20,6 +20,10 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
   and not yet fitted showing a large error;
 - cycle: ||z' - E(D(z'))||, how far V moves M's next state when its decoder draws it and its
   encoder reads the drawing back (`scripts/uncertainty_check.py`);
+- jitter: how far M's point prediction moves when its start moves as another image of the
+  same state would, mean_n ||M(z + s * eps_n, a) - M(z, a)|| over 8 draws eps_n ~ N(0, I),
+  s a fraction (``--jitter``, 0.3) of the per-dimension spread of M_R's start mu: a pair M
+  has seen on one image only may be right there and wrong on the pair's other images;
 - sums of ranks: disagreement's rank + support's rank, support's + lookup's, all three
   (and how often the half of the transitions with the lowest sum of all three is right: what a
   gate accepting half would keep), and all five;
@@ -33,7 +37,8 @@ they are wrong per number of visits, and per run the AUROC as a detector of the 
 (scaled to [0, 1]) are combined by a logistic regression fitted on the other runs' transitions
 and their labels, and judged on the run left out (leave one run out): fixed weights, learned
 once from a study, would be label-free where they are used. Also with the pairwise products
-of the ranks as features; with the first three signals and with all five.
+of the ranks as features; with the first three signals, all five, the three with jitter,
+and all six.
 
 ``--priors B1,B2,...``: also train fresh K-member ensembles on each run's real memory (the
 agent's networks, batches and number of updates, but all on the final M_R rather than online)
@@ -52,6 +57,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +96,21 @@ def fit_error(agent, r: dict[str, torch.Tensor], memory_mu: torch.Tensor,
     model = agent.model.eval()
     predicted = model.most_likely(memory_mu[j], memory_action[j])
     return (predicted - memory_next[j]).norm(dim=-1).numpy()
+
+
+@torch.no_grad()
+def jitter(agent, r: dict[str, torch.Tensor], memory_mu: torch.Tensor, fraction: float,
+           draws: int = 8, seed: int = 0) -> np.ndarray:  # fmt: skip
+    """Per imagined transition (z, a), mean_n ||M(z + s * eps_n, a) - M(z, a)||, with s
+    ``fraction`` times the per-dimension standard deviation of M_R's start mu."""
+    model = agent.model.eval()
+    generator = torch.Generator().manual_seed(seed)
+    z, action = r["z"], r["action"]
+    at = model.most_likely(z, action)
+    s = fraction * memory_mu.std(0)
+    moved = [model.most_likely(z + s * torch.randn(z.shape, generator=generator), action)
+             for _ in range(draws)]  # fmt: skip
+    return torch.stack([(m - at).norm(dim=-1) for m in moved]).mean(0).numpy()
 
 
 def half_least(scores: np.ndarray) -> np.ndarray:
@@ -175,9 +196,30 @@ class PriorWorldModel(PopulationWorldModel):
         return (heads[0], heads[1] + self.prior(x), *heads[2:])
 
 
-def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldModel:
+def member_batches(
+    memory, share: float, members: int, batch: int, generator: torch.Generator
+) -> Callable[[], dict[str, torch.Tensor]]:
+    """A sampler of K batches of B, one after the other (as :meth:`PopulationWorldModel.update`
+    takes them), member k's drawn only from its own fixed random ``share`` of the memory's
+    transitions (bagging: what member k never sees, it must guess)."""
+    held = len(memory)
+    owned = torch.rand(members, held, generator=generator) < share
+    owned[torch.arange(members), torch.randint(held, (members,), generator=generator)] = True
+    pools = [torch.nonzero(row).squeeze(-1) for row in owned]
+
+    def sample() -> dict[str, torch.Tensor]:
+        index = torch.cat([pool[torch.randint(len(pool), (batch,), generator=generator)]
+                           for pool in pools])  # fmt: skip
+        return {name: value[:1, index] for name, value in memory.data.items()}
+
+    return sample
+
+
+def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0, share: float = 1.0
+                   ) -> PriorWorldModel:  # fmt: skip
     """A new M of the agent's form, trained on its real memory as the agent trains its own:
-    ``model_updates`` bootstrapped updates per real transition held."""
+    ``model_updates`` bootstrapped updates per real transition held; with ``share`` < 1 each
+    member only on its own random share of the transitions (:func:`member_batches`)."""
     c = agent.config
     if c.model_scales != "dropout":  # the clean scale heads' loss bypasses _heads
         raise SystemExit(f"error: {run}: --priors needs model_scales dropout")
@@ -190,13 +232,21 @@ def fresh_ensemble(run: Path, agent, beta: float, seed: int = 0) -> PriorWorldMo
                        covariance=c.model_covariance)  # fmt: skip
     population = PriorWorldModel(model, beta, c.model_lr, c.reward_loss)
     generator = torch.Generator().manual_seed(seed)
+    if share < 1:
+        sample = member_batches(memory, share, c.model_ensemble, c.model_batch, generator)
+    else:
+
+        def sample() -> dict[str, torch.Tensor]:
+            return memory.sample(c.model_batch * c.model_ensemble, [generator])
+
     for _ in range(len(memory) * c.model_updates):
-        batch = memory.sample(c.model_batch * c.model_ensemble, [generator])
-        population.update(batch, [generator], resample=c.model_latents == "sample")
+        population.update(sample(), [generator], resample=c.model_latents == "sample")
     return population.eval()
 
 
-def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
+def check(
+    run: Path, starts: int, fraction: float
+) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
     agent = load_agent(run)
     if agent.memory_starts is None or agent.config.model_ensemble < 2:
         raise SystemExit(f"error: {run} holds no M_R or no ensemble of M")
@@ -210,7 +260,9 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
     lookup = lookup_distance(r, held["real.mu"], held["real.action"], held["real.next_mu"])
     fit = fit_error(agent, r, held["real.mu"], held["real.action"], held["real.next_mu"])
     cycle = (r["next_z"] - cycled(agent.encoder, r["next_z"])).norm(dim=-1).numpy()
-    signals = (("d", disagreement), ("s", support), ("l", lookup), ("f", fit), ("c", cycle))
+    moves = jitter(agent, r, held["real.mu"], fraction)
+    signals = (("d", disagreement), ("s", support), ("l", lookup), ("f", fit), ("c", cycle),
+               ("j", moves))  # fmt: skip
     ranks = {k: rankdata(v) for k, v in signals}
     unseen, few = seen == 0, (seen >= 1) & (seen <= 3)
     out = {
@@ -223,7 +275,9 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "all three (ranks)": auroc(ranks["d"] + ranks["s"] + ranks["l"], wrong),
         "fit (M's error at the nearest real start)": auroc(fit, wrong),
         "cycle (V's decode-encode)": auroc(cycle, wrong),
-        "all five (ranks)": auroc(sum(ranks.values()), wrong),
+        "all five (ranks)": auroc(sum(ranks[k] for k in "dslfc"), wrong),
+        "jitter (M's move under start noise)": auroc(moves, wrong),
+        "three + jitter (ranks)": auroc(ranks["d"] + ranks["s"] + ranks["l"] + ranks["j"], wrong),
         "support + fit (ranks)": auroc(ranks["s"] + ranks["f"], wrong),
         "right, the half least suspect by all three (not an AUROC)": float(
             right[half_least(ranks["d"] + ranks["s"] + ranks["l"])].mean()
@@ -233,8 +287,10 @@ def check(run: Path, starts: int) -> tuple[dict[str, float], np.ndarray, np.ndar
         "disagreement, never visited": auroc(disagreement[unseen], wrong[unseen]),
         "support, never visited": auroc(support[unseen], wrong[unseen]),
         "fit, visited 1-3 times": auroc(fit[few], wrong[few]),
+        "jitter, never visited": auroc(moves[unseen], wrong[unseen]),
+        "jitter, visited 1-3 times": auroc(moves[few], wrong[few]),
     }
-    scaled = np.column_stack([ranks[k] / len(wrong) for k in ("d", "s", "l", "f", "c")])
+    scaled = np.column_stack([ranks[k] / len(wrong) for k in ("d", "s", "l", "f", "c", "j")])
     return out, seen, wrong, scaled
 
 
@@ -243,28 +299,36 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--starts", type=int, default=100, help="real start states per agent")
     parser.add_argument("--priors", default="", help="betas of fresh prior ensembles, e.g. 0,1")
+    parser.add_argument("--shares", default="", help="data shares of fresh bagged ensembles")
     parser.add_argument("--stack", action="store_true", help="fitted weights, leave one run out")
+    parser.add_argument(
+        "--jitter", type=float, default=0.3, help="start noise of jitter, a fraction of mu's spread"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    betas = [float(b) for b in args.priors.split(",") if b]
+    fresh = [(float(b), 1.0) for b in args.priors.split(",") if b]
+    fresh += [(0.0, float(p)) for p in args.shares.split(",") if p]
     rows, seen_all, wrong_all, prior_rows, ranks_all = [], [], [], [], []
     for run in args.runs:
-        out, seen, wrong, ranks = check(run, args.starts)
+        out, seen, wrong, ranks = check(run, args.starts, args.jitter)
         rows.append(out)
         ranks_all.append(ranks)
         seen_all.append(seen)
         wrong_all.append(wrong)
         print(run, ", ".join(f"{k} {v:.3f}" for k, v in out.items()), flush=True)
-        if betas:
+        if fresh:
             agent = load_agent(run)
             found = []
-            for beta in betas:
-                model = fresh_ensemble(run, agent, beta)
+            for beta, share in fresh:
+                model = fresh_ensemble(run, agent, beta, share=share)
                 generator = torch.Generator().manual_seed(0)
                 r, _, right = imagined_transitions(agent, args.starts, generator, model)
-                found.append((auroc(r["disagreement"].numpy(), ~right), float(right.mean())))
-                print(f"  prior beta {beta}: disagreement AUROC {found[-1][0]:.3f}, "
-                      f"imagined right {found[-1][1]:.3f}", flush=True)  # fmt: skip
+                u = r["disagreement"].numpy()
+                few = np.isin(visits(agent, r["z"], r["action"]), [1, 2, 3])
+                found.append((auroc(u, ~right), float(right.mean()), auroc(u[few], ~right[few])))
+                print(f"  prior beta {beta}, share {share}: disagreement AUROC {found[-1][0]:.3f}, "
+                      f"imagined right {found[-1][1]:.3f}, AUROC visited 1-3 times "
+                      f"{found[-1][2]:.3f}", flush=True)  # fmt: skip
             prior_rows.append(found)
     seen, wrong = np.concatenate(seen_all), np.concatenate(wrong_all)
     print("\n| visits of the (state, action) pair in M_R | share of imagined transitions | wrong |")
@@ -281,20 +345,22 @@ def main() -> None:
     if args.stack and len(rows) > 1:
         print("\n| combiner of the ranks, leave one run out | AUROC mean (std) | min-max |")
         print("| --- | --- | --- |")
-        combiners = [(n, s, p) for n, s in (("three", 3), ("five", 5))
-                     for p in (False, True)]  # fmt: skip
+        sets = (("three", [0, 1, 2]), ("five", [0, 1, 2, 3, 4]), ("three + jitter", [0, 1, 2, 5]),
+                ("six", [0, 1, 2, 3, 4, 5]))  # fmt: skip
+        combiners = [(n, s, p) for n, s in sets for p in (False, True)]
         for signals, columns, products in combiners:
             name = f"logistic{' with pairwise products' if products else ''}, {signals} signals"
-            x = stacked_aurocs([r[:, :columns] for r in ranks_all], wrong_all, products)
+            x = stacked_aurocs([r[:, columns] for r in ranks_all], wrong_all, products)
             print(f"| {name} | {x.mean():.3f} ({x.std(ddof=1):.3f}) | "
                   f"{x.min():.3f}-{x.max():.3f} |")  # fmt: skip
     if prior_rows:
-        x = np.array(prior_rows)  # (runs, betas, 2)
-        print("\n| fresh ensemble, prior beta | disagreement AUROC | imagined right |")
-        print("| --- | --- | --- |")
-        for j, beta in enumerate(betas):
-            print(f"| {beta} | {x[:, j, 0].mean():.3f} ({x[:, j, 0].std(ddof=1):.3f}) | "
-                  f"{x[:, j, 1].mean():.1%} |")  # fmt: skip
+        x = np.array(prior_rows)  # (runs, variants, 3)
+        print("\n| fresh ensemble: prior beta, each member's share of M_R | disagreement AUROC | "
+              "imagined right | AUROC, pairs visited 1-3 times |")  # fmt: skip
+        print("| --- | --- | --- | --- |")
+        for j, (beta, share) in enumerate(fresh):
+            print(f"| {beta}, {share} | {x[:, j, 0].mean():.3f} ({x[:, j, 0].std(ddof=1):.3f}) | "
+                  f"{x[:, j, 1].mean():.1%} | {np.nanmean(x[:, j, 2]):.3f} |")  # fmt: skip
 
 
 if __name__ == "__main__":

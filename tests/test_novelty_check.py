@@ -73,3 +73,29 @@ def test_fit_is_ms_error_at_the_nearest_real_start_with_the_same_action(load_scr
          "action": torch.tensor([1, 1])}  # fmt: skip
     fit = novelty.fit_error(SimpleNamespace(model=model), r, mu, action, next_mu)
     assert np.allclose(fit, [3.0, 0.0], atol=1e-5)
+
+
+def test_jitter_is_how_far_ms_prediction_moves_with_its_start(load_script):
+    """An M that ignores z does not move; one that copies z moves by the noise it is given,
+    in proportion to the fraction of M_R's spread."""
+    from types import SimpleNamespace
+
+    novelty = load_script("novelty_check")
+
+    class Copy:
+        def eval(self):
+            return self
+
+        def most_likely(self, z, action):
+            return z * torch.tensor(1.0 if self.moves else 0.0)
+
+    memory_mu = torch.randn(500, 8, generator=torch.Generator().manual_seed(1)) * 2.0
+    r = {"z": torch.randn(40, 8), "action": torch.randint(0, 6, (40,))}
+    still, copy = Copy(), Copy()
+    still.moves, copy.moves = False, True
+    assert np.allclose(novelty.jitter(SimpleNamespace(model=still), r, memory_mu, 0.3), 0.0)
+    small = novelty.jitter(SimpleNamespace(model=copy), r, memory_mu, 0.1)
+    large = novelty.jitter(SimpleNamespace(model=copy), r, memory_mu, 0.3)
+    assert np.allclose(large, 3 * small, rtol=1e-4)  # the same draws, three times the scale
+    # E||s eps|| for eps ~ N(0, I_8) is about s sqrt(8) with s = 0.1 x 2
+    assert 0.4 < small.mean() < 0.7
