@@ -99,3 +99,25 @@ def test_jitter_is_how_far_ms_prediction_moves_with_its_start(load_script):
     assert np.allclose(large, 3 * small, rtol=1e-4)  # the same draws, three times the scale
     # E||s eps|| for eps ~ N(0, I_8) is about s sqrt(8) with s = 0.1 x 2
     assert 0.4 < small.mean() < 0.7
+
+
+def test_bagged_members_each_draw_only_from_their_own_share(load_script):
+    from imagine.learning.memory import ReplayMemory, real_fields
+
+    novelty = load_script("novelty_check")
+    memory = ReplayMemory(400, real_fields(4))
+    n = 400
+    memory.add(mu=torch.arange(n, dtype=torch.float32)[:, None].expand(n, 4).clone(),
+               sigma=torch.ones(n, 4), action=torch.zeros(n, dtype=torch.int64),
+               next_mu=torch.zeros(n, 4), next_sigma=torch.ones(n, 4), reward=torch.zeros(n),
+               done=torch.zeros(n))  # fmt: skip
+    sample = novelty.member_batches(memory, 0.5, 3, 64, torch.Generator().manual_seed(0))
+    seen = [set() for _ in range(3)]
+    for _ in range(50):
+        batch = sample()
+        assert batch["mu"].shape == (1, 3 * 64, 4)
+        for k in range(3):  # member k's batch is the k-th block of 64
+            seen[k] |= set(batch["mu"][0, 64 * k : 64 * (k + 1), 0].long().tolist())
+    for k in range(3):
+        assert 150 < len(seen[k]) < 250  # about half of the 400, and only those
+    assert seen[0] != seen[1]  # each member its own share
