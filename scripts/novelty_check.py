@@ -306,8 +306,13 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    fresh = [(float(b), 1.0) for b in args.priors.split(",") if b]
-    fresh += [(0.0, float(p)) for p in args.shares.split(",") if p]
+    try:
+        fresh = [(float(b), 1.0) for b in args.priors.split(",") if b]
+        fresh += [(0.0, float(p)) for p in args.shares.split(",") if p]
+    except ValueError as error:
+        parser.error(f"--priors and --shares take numbers separated by commas ({error})")
+    if any(not 0.0 < share <= 1.0 for _, share in fresh):
+        parser.error(f"--shares must lie in (0, 1], got {args.shares}")
     rows, seen_all, wrong_all, prior_rows, ranks_all = [], [], [], [], []
     for run in args.runs:
         out, seen, wrong, ranks = check(run, args.starts, args.jitter)
