@@ -99,9 +99,7 @@ def fresh_generalization(agent, model: WorldModel) -> float:
     from imagine.study.generalization import generalization
 
     probe = SimpleNamespace(encoder=agent.encoder, model=model, config=agent.config)
-    accuracy = generalization(probe)["all_terminal_accuracy"]
-    model.eval()  # generalization leaves M in training mode
-    return accuracy
+    return generalization(probe)["all_terminal_accuracy"]
 
 
 def main() -> None:

@@ -106,3 +106,31 @@ def test_plans_and_predictions_take_vs_means_from_another_device():
     cpu = SimpleNamespace(**vars(agent), encoder=OracleEncoder())
     assert torch.allclose(predict_next(gpu, images, states, actions)[0],
                           predict_next(cpu, images, states, actions)[0])  # fmt: skip
+
+
+@pytest.mark.parametrize("training", [True, False])
+def test_plans_and_predictions_leave_m_and_c_in_the_mode_they_found(training):
+    """Plans and M's predictions run without dropout and hand M and C back as they were: a
+    loaded agent stays in eval mode for what a caller does next, a training one in train."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
+    from imagine.models.controller import Controller
+    from imagine.models.world_model import WorldModel
+    from imagine.study.generalization import next_from
+    from imagine.study.planning import imagine_plan
+
+    torch.manual_seed(0)
+    agent = SimpleNamespace(model=WorldModel(8, dropout=0.5, ensemble=2),
+                            controller=Controller(8))  # fmt: skip
+    agent.model.train(training)
+    agent.controller.train(training)
+    mu, _ = OracleEncoder().encode(np.zeros((4, 64, 64, 3), np.uint8), start_states("hard")[:4])
+    first = next_from(agent, mu, np.arange(4))
+    assert agent.model.training is training
+    torch.testing.assert_close(next_from(agent, mu, np.arange(4)), first)  # no dropout draws
+    imagine_plan(agent, mu[0])
+    assert agent.model.training is training and agent.controller.training is training
+    assert all(m.training is training for m in agent.model.modules())

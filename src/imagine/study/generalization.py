@@ -31,13 +31,15 @@ def predict_next(agent, images: np.ndarray, states: np.ndarray, actions: np.ndar
 @torch.no_grad()
 def next_from(agent, mu: torch.Tensor, actions: np.ndarray, first_member: bool = False):
     """M's most likely next latent from V's means (:meth:`WorldModel.most_likely`; with
-    ``first_member``, an ensemble's first MDN alone)."""
+    ``first_member``, an ensemble's first MDN alone), without dropout; M is left in the mode
+    it was in."""
     device = next(agent.model.parameters()).device  # V may sit on a GPU, M on the CPU
     model = agent.model
+    was_training = model.training
     model.eval()
     predict = model.mdn.most_likely if first_member else model.most_likely
     next_z = predict(mu.to(device), torch.as_tensor(actions, device=device))
-    model.train()
+    model.train(was_training)
     return next_z
 
 

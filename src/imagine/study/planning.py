@@ -65,8 +65,9 @@ def judge_plan(start: np.ndarray, actions: list[int], task: str) -> PlanResult:
 def imagine_plan(agent, mu: torch.Tensor, depth: int = 10) -> tuple[list[int], torch.Tensor]:
     """C's greedy actions through M's most likely states from the latent ``mu`` (latent_dim,),
     until d says terminal or ``depth`` actions; returns the actions and the latents visited
-    (start included), (len + 1, latent_dim)."""
+    (start included), (len + 1, latent_dim). M and C are left in the modes they were in."""
     model, controller = agent.model, agent.controller
+    modes = model.training, controller.training
     model.eval()
     controller.eval()
     mu = mu.to(next(model.parameters()).device)  # V may sit on a GPU, M and C on the CPU
@@ -78,8 +79,8 @@ def imagine_plan(agent, mu: torch.Tensor, depth: int = 10) -> tuple[list[int], t
         latents.append(z[0])
         if bool(model.terminal.is_terminal(z)[0]):
             break
-    model.train()
-    controller.train()
+    model.train(modes[0])
+    controller.train(modes[1])
     return actions, torch.stack(latents)
 
 
