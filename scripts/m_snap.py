@@ -50,12 +50,13 @@ def bank_log_density(m: Mixture, bank: torch.Tensor, chunk: int = 1024) -> torch
                      dim=1)  # fmt: skip
 
 
-def resample(m: Mixture, bank: torch.Tensor, generator: torch.Generator):
-    """One bank point per row, drawn with probability proportional to the row's mixture
-    density there; with the effective number of points each row draws among, 1 / sum w^2."""
+def resample(m: Mixture, bank: torch.Tensor, generator: torch.Generator, draws: int = 1):
+    """``draws`` bank points per row (draws, N, D), each drawn with probability proportional
+    to the row's mixture density there; with the effective number of points each row draws
+    among, 1 / sum w^2 (N,)."""
     weights = bank_log_density(m, bank).softmax(-1)
-    index = torch.multinomial(weights, 1, generator=generator).squeeze(-1)
-    return bank[index], 1.0 / weights.square().sum(-1)
+    index = torch.multinomial(weights, draws, replacement=True, generator=generator)
+    return bank[index.T], 1.0 / weights.square().sum(-1)
 
 
 @torch.no_grad()
@@ -80,10 +81,7 @@ def check(run: Path, draws: int) -> dict[str, float]:
         sample = model.mdn.sample(z[seen], action[seen], generator)
         raw.append(right(sample, seen))
         snapped.append(right(snap(sample, bank), seen))
-    mixture = model.mdn(z[seen], action[seen])
-    resampled, effective = zip(
-        *(resample(mixture, bank, generator) for _ in range(draws)), strict=True
-    )
+    resampled, effective = resample(model.mdn(z[seen], action[seen]), bank, generator, draws)
     resampled_right = [right(points, seen) for points in resampled]
     looked_up = nearest_start({"z": z[seen], "action": action[seen]}, held["real.mu"],
                               held["real.action"])  # fmt: skip
@@ -96,7 +94,7 @@ def check(run: Path, draws: int) -> dict[str, float]:
         "draws right": float(np.mean(raw)),
         "draws right, snapped": float(np.mean(snapped)),
         "draws resampled from M_R": float(np.mean(resampled_right)),
-        "points a resampled draw draws among (median)": float(torch.stack(effective).median()),
+        "points a resampled draw draws among (median)": float(effective.median()),
         "lookup (M_R's nearest start, same action)": float(right(bank[looked_up], seen).mean()),
         "mode right": float(mode_raw[seen].mean()),
         "mode right, snapped": float(mode_snapped[seen].mean()),

@@ -31,11 +31,12 @@ def test_resampling_follows_the_mixture_among_bank_points(load_script):
     # two clusters of bank points; the mixture puts 80% of its weight on the first
     bank = torch.cat([torch.zeros(50, 2), torch.full((50, 2), 5.0)]) + 0.01 * torch.randn(100, 2)
     m = mixture([[0.0, 0.0], [5.0, 5.0]], 0.5, [0.8, 0.2])
-    m = Mixture(*(x.expand(4000, *x.shape[1:]) for x in m[:3]))
-    points, effective = snap.resample(m, bank, torch.Generator().manual_seed(0))
-    assert all((bank == p).all(-1).any() for p in points[:100])  # only bank points
-    first = (points.norm(dim=-1) < 1).float().mean()
-    assert abs(first - 0.8) < 0.03
+    m = Mixture(*(x.expand(2, *x.shape[1:]) for x in m[:3]))  # two rows
+    points, effective = snap.resample(m, bank, torch.Generator().manual_seed(0), draws=2000)
+    assert points.shape == (2000, 2, 2)
+    assert all((bank == p).all(-1).any() for p in points[:100, 0])  # only bank points
+    first = (points.norm(dim=-1) < 1).float().mean(0)
+    assert ((first - 0.8).abs() < 0.03).all()
     assert ((effective > 60) & (effective < 100)).all()  # spread over most of the bank
 
 
@@ -44,5 +45,5 @@ def test_a_narrow_mixture_resamples_the_nearest_bank_point(load_script):
     bank = torch.tensor([[0.0, 0.0], [0.3, 0.0], [3.0, 3.0]])
     m = mixture([[0.32, 0.01]], 0.01, [1.0])
     points, effective = snap.resample(m, bank, torch.Generator().manual_seed(0))
-    torch.testing.assert_close(points, bank[1:2])
+    torch.testing.assert_close(points, bank[1:2][None])
     assert effective.item() < 1.01
