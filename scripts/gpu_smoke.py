@@ -21,7 +21,7 @@ from imagine.cli import evaluate_agent
 from imagine.config import AGENT_PRESETS
 from imagine.study.reproduce import StudyConfig, reproduce
 
-FAST_AUGMENTED = {key: AGENT_PRESETS["fast"][key] for key in (
+FAST_AUGMENTED = {key: AGENT_PRESETS["fast"]["augmented"][key] for key in (
     "model_ensemble", "imagination_gate", "belief", "value_expansion", "imagination_from",
     "imagination_draw", "model_residual")}  # fmt: skip
 """The `fast` preset's own values of the parts checked, set on the `smoke` preset."""

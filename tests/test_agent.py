@@ -264,8 +264,8 @@ def test_a_new_task_starts_from_a_trained_runs_dynamics(tmp_path):
     assert done.returncode == 2 and "holds no agent run" in done.stderr, done.stderr
     with pytest.raises(ConfigError, match="encoder"):
         dynamics_source(dataclasses.replace(hard, encoder="vae", vae_run="somewhere"))
-    with pytest.raises(ConfigError, match=r"init_from: .* has model_"):  # another form of M
-        dynamics_source(dataclasses.replace(hard, model_residual=True, model_cloud_head=16))
+    with pytest.raises(ConfigError, match=r"init_from: .* has n_components"):  # another M
+        dynamics_source(dataclasses.replace(hard, n_components=3))
 
 
 def test_an_agent_acts_on_camera_images(tmp_path):

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-import toy_envs  # noqa: F401  (registers the toy environments)
 
+import toy_envs  # noqa: F401  (registers the toy environments)
 from imagine.config import agent_preset
 from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 from imagine.errors import ConfigError

@@ -11,7 +11,6 @@ from imagine.envs.gesture_puzzle.encoders import OracleEncoder
 from imagine.errors import ConfigError
 from imagine.learning.agent import belief_tracker, greedy_actions, load_agent
 from imagine.learning.belief import BeliefTracker, fuse
-from imagine.learning.population import Population
 from imagine.learning.test_episodes import GreedyPolicy
 from imagine.learning.training import train
 from imagine.models.controller import Controller
@@ -42,36 +41,6 @@ def test_the_belief_averages_ms_prediction_and_vs_observation():
     m = mdn.explain(b1[1:], torch.tensor([2]), mu2[2:])  # recursive: from row 2's belief
     assert torch.allclose(b2[1], fuse(m[0], mu2[2], 0.5), atol=1e-6)
     assert torch.equal(BeliefTracker(model, 0.0, 3, 4).observe(mu1, rows), mu1)  # w = 0: mu
-
-
-def test_a_population_acts_on_the_filtered_belief_while_training_only_if_asked():
-    config = agent_preset("smoke", encoder="oracle", imagination_start=0, belief="filtered")
-    population = Population([config], OracleEncoder())
-    for _ in range(20):
-        population.step()
-        assert torch.equal(population.belief, population.mu)  # trains acting on mu
-    config = agent_preset("smoke", encoder="oracle", method="augmented", imagination_start=0,
-                          belief="filtered", belief_weight=0.4,
-                          belief_in_training=True)  # fmt: skip
-    population = Population([config], OracleEncoder())
-    checked = 0
-    for _ in range(300):  # early episodes are short: most end at their first step
-        if checked == 5:
-            break
-        starting = population._starting[0]  # this step starts an episode at b_0 = mu_0
-        before = population.belief.clone()
-        population.step()
-        if starting or population._starting[0]:  # (an ended episode's belief is not used)
-            continue
-        memory = population.real
-        action = memory.data["action"][0, memory.position[0] - 1].view(1, 1)
-        observed = population.mu.unsqueeze(1)
-        m = population.model.explain(before.unsqueeze(1), action, observed)[:, 0]
-        expected = fuse(m[0], population.mu[0], 0.4)
-        assert torch.allclose(population.belief[0], expected, atol=1e-6)
-        assert not torch.equal(population.belief[0], population.mu[0])
-        checked += 1
-    assert checked >= 5
 
 
 def test_the_baseline_and_observation_belief_act_on_vs_means():

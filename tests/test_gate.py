@@ -44,7 +44,7 @@ class ScheduledModel(RuleModel):
         super().__init__(OracleEncoder(), "original")
         self.schedule, self.t = schedule, 0
 
-    def predict(self, z, action, generators, draw, temperature=1.0):
+    def predict(self, z, action, generators, draw):
         spread = self.schedule[self.t].expand(z.shape[:-1])
         self.t += 1
         return Prediction(self._next(z, action), spread)

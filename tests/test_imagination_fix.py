@@ -83,21 +83,6 @@ def test_rollouts_from_the_mean_with_the_mode_are_deterministic():
     assert all(torch.equal(runs[0][k], runs[1][k]) for k in first)
 
 
-def test_rollouts_at_a_low_temperature_draw_near_the_mode():
-    """imagination_temperature reaches M's draws in imagination: at tau = 1e-6 a draw is the
-    mode up to sigma * 1e-3."""
-    torch.manual_seed(0)
-    model = PopulationWorldModel([WorldModel(4, dropout=0.0)])
-    controller = PopulationController([Controller(4)])
-    mu, sigma = torch.randn(1, 4), torch.zeros(1, 4)
-    cold, warm = (imagine_rollouts(model, controller, mu, sigma, 2, 1, [0.0],
-                                   [torch.Generator().manual_seed(0)], draw="sample",
-                                   temperature=t)[0] for t in (1e-6, 1.0))  # fmt: skip
-    mode = model.mode(cold["z"].unsqueeze(0), cold["action"].unsqueeze(0))[0]
-    assert torch.allclose(cold["next_z"], mode, atol=1e-2)
-    assert not torch.allclose(warm["next_z"], mode, atol=1e-2)
-
-
 def test_bad_imagination_choices_are_refused():
     with pytest.raises(ConfigError, match="model_latents must be one of sample, mu"):
         agent_preset("fast", model_latents="means")
@@ -105,10 +90,6 @@ def test_bad_imagination_choices_are_refused():
         agent_preset("fast", imagination_draw="max")
     with pytest.raises(ConfigError, match="imagination_epsilon must be in"):
         agent_preset("fast", imagination_epsilon=1.5)
-    with pytest.raises(ConfigError, match="latent_space must be one of posterior, standardized"):
-        agent_preset("fast", latent_space="whitened")
-    with pytest.raises(ConfigError, match="imagination_temperature must be positive"):
-        agent_preset("fast", imagination_temperature=0.0)
     with pytest.raises(ConfigError, match="reward_loss must be one of logcosh, mse"):
         agent_preset("fast", reward_loss="huber")
     with pytest.raises(ConfigError, match=r"reward_dropout must be in \[0, 1\) or null"):
@@ -221,7 +202,7 @@ class RuleModel:
     def mode(self, z, action):
         return self._next(z, action)
 
-    def predict(self, z, action, generators, draw, temperature=1.0):
+    def predict(self, z, action, generators, draw):
         from imagine.models.world_model import Prediction
 
         return Prediction(self._next(z, action), torch.zeros(z.shape[:-1]))
@@ -336,54 +317,6 @@ def test_imagined_rollouts_start_where_imagination_from_says(start):
         assert bool(at_current.all())
     else:
         assert float(at_current.float().mean()) < 0.5
-
-
-class _OneCollapsed:
-    """An encoder whose third dimension holds the prior alone (mean 0, sigma 1)."""
-
-    latent_dim = 3
-
-    def __init__(self) -> None:
-        self.table = torch.stack(
-            [torch.arange(192.0) / 50, torch.arange(192.0).remainder(7) * 3,
-             torch.full((192,), 0.01)], dim=-1,
-        )  # fmt: skip
-
-    def encode(self, images, states):
-        mu = self.table[torch.as_tensor(states)]
-        return mu, torch.tensor([0.05, 0.3, 1.0]).expand_as(mu)
-
-    def classify(self, z):
-        return torch.cdist(z, self.table).argmin(-1)
-
-    def state_latents(self):
-        return self.table.clone()
-
-
-def test_standardized_latent_drops_collapsed_dimensions_and_keeps_every_state_apart():
-    from imagine.envs.gesture_puzzle.encoders import StandardizedEncoder
-
-    inner = _OneCollapsed()
-    encoder = StandardizedEncoder(inner)
-    assert encoder.latent_dim == 2  # the collapsed third dimension is gone
-    z = encoder.state_latents()
-    assert torch.allclose(z.mean(0), torch.zeros(2), atol=1e-5)
-    assert torch.allclose(z.std(0), torch.ones(2), atol=1e-5)
-    states = np.arange(0, 192, 5)
-    mu, sigma = encoder.encode(None, states)
-    assert torch.allclose(mu, z[states])
-    assert torch.allclose(sigma, torch.tensor([0.05, 0.3]) / inner.table[:, :2].std(0))
-    # every state is read back from its standardized latent
-    assert torch.equal(encoder.classify(z), torch.arange(192))
-
-
-def test_standardized_oracle_reads_back_every_macrostate():
-    from imagine.envs.gesture_puzzle.rules import all_macrostates
-    from imagine.learning.agent import make_encoder
-
-    encoder = make_encoder(agent_preset("fast", encoder="oracle", latent_space="standardized"))
-    assert encoder.latent_dim == 8
-    assert np.array_equal(encoder.classify(encoder.state_latents()).numpy(), all_macrostates())
 
 
 def test_macrostate_separation_measures_the_microstates_against_the_macrostates():

@@ -41,12 +41,3 @@ def test_mixture_draws_follow_the_weights_and_components():
     assert abs(low.float().mean().item() - 0.25) < 0.015
     assert abs(draws[low].std().item() - 0.1) < 0.01
     assert abs(draws[~low].mean().item() - 5.0) < 0.01
-
-
-def test_snapping_replaces_each_point_by_its_nearest_bank_row(load_script):
-    snap = load_script("m_snap").snap
-    bank = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 5.0]])
-    points = torch.tensor([[0.4, 0.1], [0.6, -0.2], [0.1, 3.0]])
-    assert torch.equal(snap(points, bank), bank[[0, 1, 2]])
-    nearest = load_script("m_snap").nearest_other(bank)
-    assert torch.allclose(nearest, torch.tensor([1.0, 1.0, 5.0]))

@@ -14,7 +14,6 @@ from imagine.models.world_model import (
     WorldModel,
     log_cosh,
     mixture_nll,
-    sample_mixture,
 )
 
 
@@ -205,37 +204,3 @@ def test_r_and_d_take_their_own_dropout_and_the_mdn_keeps_its_own():
     assert torch.equal(r[0], r[1])  # no masks drawn in training mode
     masked = PopulationWorldModel([WorldModel(4, dropout=0.2)])
     assert not torch.equal(masked.reward(z, gens), masked.reward(z, gens))
-
-
-def test_a_tempered_draw_sharpens_the_mixture_as_world_models_does():
-    """sample_mixture at temperature tau: components drawn with weights ~ pi^(1/tau), scales
-    sigma sqrt(tau); tau = 1 gives exactly M's own draws."""
-    n = 20000
-    log_pi = torch.log(torch.tensor([0.6, 0.3, 0.1])).expand(n, 3)
-    mu = torch.tensor([[0.0], [10.0], [20.0]]).expand(n, 3, 1)
-    m = Mixture(log_pi, mu, torch.full((n, 3, 1), 1.0))
-    plain = sample_mixture(m, torch.Generator().manual_seed(0))
-    same = sample_mixture(m, torch.Generator().manual_seed(0), temperature=1.0)
-    assert torch.equal(plain, same)
-    tempered = sample_mixture(m, torch.Generator().manual_seed(0), temperature=0.5)
-    component = (tempered / 10).round().clamp(0, 2).long().squeeze(-1)
-    expected = torch.tensor([0.36, 0.09, 0.01]) / 0.46  # pi^2, normalized
-    observed = torch.bincount(component, minlength=3).float() / n
-    assert torch.allclose(observed, expected, atol=0.015), observed
-    first = tempered[component == 0]
-    assert abs(first.std().item() - math.sqrt(0.5)) < 0.03  # sigma sqrt(tau)
-    cold = sample_mixture(m, torch.Generator().manual_seed(0), temperature=0.01)
-    assert (cold.abs() < 1).float().mean() > 0.99  # the heaviest component's mean
-
-
-def test_m_accuracy_reports_draws_at_the_agents_temperature():
-    from imagine.envs.gesture_puzzle.encoders import OracleEncoder
-    from imagine.envs.gesture_puzzle.evaluation import model_accuracy
-
-    torch.manual_seed(0)
-    model, encoder = WorldModel(8, dropout=0.0), OracleEncoder()
-    plain = model_accuracy(model, encoder, "hard")
-    tempered = model_accuracy(model, encoder, "hard", temperature=0.5)
-    assert "transition_sampled_tempered" not in plain
-    assert 0.0 <= tempered["transition_sampled_tempered"] <= 1.0
-    assert tempered["transition_sampled"] == plain["transition_sampled"]

@@ -32,6 +32,14 @@ def _flags_show_no_type() -> None:
 
     display_type_rich.flags_show_no_type = True
     option.display_type_rich = display_type_rich
+    argument = getattr(typer.core, "TyperArgument", None)
+    shown_argument = getattr(argument, "display_type_rich", None)
+    if shown_argument is not None:  # an argument with a metavar: the metavar says it all
+
+        def argument_type_rich(self, ctx):
+            return None if getattr(self, "metavar", None) else shown_argument(self, ctx)
+
+        argument.display_type_rich = argument_type_rich
 
 
 _flags_show_no_type()
@@ -511,8 +519,7 @@ def evaluate_agent(
     accuracy = imagined = imagined_other = calibration = calibration_all = None
     other = "mode" if agent.config.imagination_draw == "sample" else "sample"
     if agent.config.trains_model:
-        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p,
-                                  agent.config.imagination_temperature)  # fmt: skip
+        accuracy = model_accuracy(agent.model, agent.encoder, agent.config.task, p)
         calibration = hand_calibration(agent.model, agent.encoder, agent.config.task, p)
         calibration_all = hand_calibration(agent.model, agent.encoder, agent.config.task, p,
                                            include_terminal=True)  # fmt: skip
@@ -539,9 +546,6 @@ def evaluate_agent(
     print("M accuracy: transition {transition:.1%} (non-terminal {transition_nonterminal:.1%}, "
           "sampled {transition_sampled:.1%}), reward {reward:.1%}, terminal {terminal:.1%}"
           .format(**accuracy))  # fmt: skip
-    if "transition_sampled_tempered" in accuracy:
-        print(f"M's draws at imagination_temperature {agent.config.imagination_temperature}: "
-              f"right {accuracy['transition_sampled_tempered']:.1%} (non-terminal)")  # fmt: skip
     if "hand_kept_sampled" in accuracy:
         print(f"stochastic human: M's draws keep the hand {accuracy['hand_kept_sampled']:.1%} "
               f"of the time (truth {1 - p:.1%}); its mixture's weight: hand kept "
@@ -718,6 +722,67 @@ def generalize_command(
           f"{result['all_terminal_transitions']} terminal transitions "
           f"{100 * result['all_terminal_accuracy']:.1f}%")  # fmt: skip
     print(f"wrote {run / 'generalization.json'}" + (f" and {png}" if png else ""))
+
+
+@app.command("study")
+def study_command(
+    files: Annotated[
+        list[Path], typer.Argument(metavar="FILE", help="Experiment files (experiments/*.yaml).")
+    ],
+    out: Annotated[Path, typer.Option(help="Study folder (resumed if it holds one).")] = Path(
+        "runs/study"
+    ),
+    tasks: Annotated[str, typer.Option(metavar="TASKS", help="Comma-separated tasks.")] = "hard",
+    seeds: Annotated[
+        str, typer.Option(metavar="SEEDS", help="Seeds of every (file, task), e.g. 0-4.")
+    ] = "0-4",
+    budgets: Annotated[
+        str, typer.Option(metavar="BUDGETS", help="Comma-separated training-episode budgets.")
+    ] = "1000,2000",
+    vae: Annotated[Path | None, typer.Option(help="V run folder (imagine vae train).")] = None,
+    oracle: Annotated[bool, typer.Option(help="Feed C and M the true macrostate.")] = False,
+    workers: Annotated[int, typer.Option(help="Runs at once (one torch thread each).")] = 2,
+) -> None:
+    """Run experiment files (experiments/*.yaml) on tasks, seeds and budgets; rerun to resume.
+
+    Each file's agents train on every task and seed, evaluated at every budget (the file's
+    eval_episodes greedy test episodes). Prints and writes OUT/STUDY.md: success as mean (std)
+    and IQM [95% CI] per task and budget. Every evaluation records its resolved config, the
+    commit and V's hash."""
+    from imagine.config import parse_seeds
+    from imagine.study.experiment_file import experiment_jobs, load_experiment, study_table
+    from imagine.study.experiments import LocalRunner, folder_lock
+
+    if (vae is None) == (not oracle):
+        raise ImagineError("imagine study needs --vae RUN or --oracle (one of them)")
+    if vae is not None and not (vae / "vae.safetensors").is_file():
+        raise ImagineError(f"--vae {vae}: not a V run folder (no vae.safetensors)")
+    try:
+        budget_list = tuple(sorted({int(x) for x in budgets.split(",")}))
+    except ValueError:
+        raise ImagineError(f"--budgets expects comma-separated integers, got {budgets!r}") from None
+    task_list = tuple(t.strip() for t in tasks.split(",") if t.strip())
+    experiments = [load_experiment(f) for f in files]
+    names = [e.name for e in experiments]
+    if len(set(names)) < len(names):
+        raise ImagineError(f"two experiment files share a name: {', '.join(names)}")
+    vae_run = None if vae is None else str(vae.resolve())
+    jobs = {e.name: experiment_jobs(e, out, task_list, parse_seeds(seeds), budget_list, vae_run)
+            for e in experiments}  # fmt: skip
+    todo = [j for e in experiments for j in jobs[e.name] if not j.finished()]
+    start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        with folder_lock(out, notice=console.print):
+            LocalRunner(workers).run(
+                todo, on_start=lambda job: None,
+                on_done=lambda job, error: console.print(f"{job.folder}: {error or 'done'}"),
+            )  # fmt: skip
+    finally:  # stopped or not, the table of what has finished
+        table = study_table(experiments, jobs, task_list, budget_list)
+        (out / "STUDY.md").write_text(table + "\n")
+        console.print(table, soft_wrap=True)
+    console.print(f"studied in {time.perf_counter() - start:.0f} s; table: {out / 'STUDY.md'}")
 
 
 @app.command("reproduce")

@@ -267,11 +267,6 @@ class AgentConfig:
     """V run folder (from `imagine vae train`) for encoder=vae."""
     oracle_sigma: float = 0.05
     """The sigma the oracle encoder reports, so latents can still be re-sampled."""
-    latent_space: str = "posterior"
-    """The space C and M work in: posterior (the encoder's own: all of V's dimensions, as V
-    left them; the paper) or standardized (only the dimensions whose mean moves across
-    macrostates, each centred and scaled to unit spread over the encoder's per-macrostate mean
-    latents; sigma scaled alike). Collapsed dimensions carry only the prior's noise."""
     gamma: float = 0.99
     """Discount (the paper does not say; DESIGN.md: 0.99)."""
     eps_min: float = 0.001
@@ -326,24 +321,13 @@ class AgentConfig:
     for (b_{t-1}, a_{t-1}) that best explains mu_t and w ``belief_weight``: a filter of
     constant gain that averages V's reading of the image with M's prediction of it;
     :mod:`imagine.learning.belief`). C learns from V's means either way, and acts on them while
-    it trains unless ``belief_in_training``. With V, a fresh image's latent lies about as far
-    from its macrostate's mean as the nearest other macrostate does, and M's prediction of it
-    is near that mean (README, issue 14, round 11)."""
+    it trains (acting on the belief in training too was measured worse: C no longer takes,
+    and so never corrects, the actions its values prefer on V's means). With V, a fresh
+    image's latent lies about as far from its macrostate's mean as the nearest other
+    macrostate does, and M's prediction of it is near that mean (README, issue 14, round 11)."""
     belief_weight: float = 0.5
     """w of the ``filtered`` belief: the weight of M's prediction against V's observation, in
     [0, 1)."""
-    belief_in_training: bool = False
-    """Whether C also acts on the ``filtered`` belief while it trains (its epsilon-greedy
-    behaviour), not only in test episodes and ``Agent.act``. Measured worse (README, issue 14,
-    round 11: 88.0 / 89.5 on hard / original at 2000 episodes against 90.6 / 98.2): acting on
-    the belief, C no longer takes, and so never corrects, the actions its values prefer on
-    V's means."""
-    imagination_temperature: float = 1.0
-    """tau of imagination's draws (``imagination_draw`` sample, component or outcome): weights
-    proportional to pi^(1/tau) and scales sigma sqrt(tau), World Models' temperature. 1: M's
-    own mixture (the paper); towards 0 the draws approach the mode. With this V a perfect
-    diagonal M's draws are right 80.8% of the time at tau = 1 and 99.3% at half the scales
-    (README, issue 14)."""
     imagination_from: str = "current"
     """Where the I_B imagined rollouts of a step start: current (the paper: each from the agent's
     current latent state, so with a near-greedy C they retrace the path C is about to take) or
@@ -411,27 +395,6 @@ class AgentConfig:
     a CPU with AMX or avx512_bf16 and a GPU compute it fastest; README, issue 18). Evaluation,
     planning and the checkpoints are float32 either way. An agent's numbers match its run in a
     population bitwise with float32 only."""
-    model_covariance: str = "diagonal"
-    """Each component of M's mixture: diagonal (the paper: independent scales per latent
-    dimension) or full (N(mu_k, L_k L_k^T) with a learned Cholesky factor L_k, D (D - 1) / 2
-    more outputs per component). A diagonal Gaussian ignores how V's dimensions move together
-    from image to image, which bounds how often M's draws land on the right macrostate (README,
-    issue 14: 80.8% for a perfect diagonal M with the fast V, 95.1% with a full covariance)."""
-    model_cloud_head: int = 0
-    """0: the paper's MDN (each (z, a) gets its own mixture from the body's features). N > 0: a
-    cloud head of N x N units (:class:`~imagine.models.world_model.MDN`): the body predicts one
-    next point c = z + f(z, a) and the mixture around it (weights, offsets, scales) is a
-    function of c alone, learned from every transition into the same region of V's latent
-    space (README, issue 14 round 26). Needs model_residual, a diagonal covariance and
-    dropout-fitted scales."""
-    model_scales: str = "dropout"
-    """Which network the scales of M's predictions are fitted on: dropout (the paper: the
-    network with dropout's masks, beside its means) or clean (second scale heads, fitted by
-    equation 5 on the same network without the masks, the one that predicts; the body,
-    weights and means learn exactly as with dropout). Dropout's masks move the means from
-    update to update, so scales fitted beside them are wider than the next states' spread
-    when M predicts (README, issue 14, round 13). Costs a mask-free pass of the MDN's body per
-    update (no gradient) and one more head."""
     model_ensemble: int = 1
     """K: members of M's MDN per agent (PETS, MBPO), each with its own initialization and its
     own bootstrap batch of M_R per update; r and d stay single. Imagination follows a member
@@ -519,7 +482,7 @@ class AgentConfig:
     def __post_init__(self) -> None:
         choices = {"task": TASKS, "method": ("baseline", "augmented"),
                    "encoder": ENCODERS,
-                   "latent_space": ("posterior", "standardized"), "eps_time": ("step", "episode"),
+                   "eps_time": ("step", "episode"),
                    "controller_input": ("mu", "sample"), "model_latents": ("sample", "mu"),
                    "imagination_draw": ("sample", "mode", "component", "outcome"),
                    "imagination_from": ("current", "memory"),
@@ -529,9 +492,7 @@ class AgentConfig:
                    "imagination_uncertainty": UNCERTAINTIES,
                    "value_expansion_weighting": ("mve", "steve"),
                    "value_expansion_members": ("first", "mean"),
-                   "belief": ("observation", "filtered"),
-                   "model_covariance": ("diagonal", "full"),
-                   "model_scales": ("dropout", "clean")}  # fmt: skip
+                   "belief": ("observation", "filtered")}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(
@@ -542,23 +503,10 @@ class AgentConfig:
                     "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
                     "eval_episodes", "n_components", "model_ensemble", "controller_lr",
                     "model_lr", "reward_hidden", "terminal_hidden",
-                    "imagination_gate_scale",
-                    "imagination_temperature",
-                    "imagination_gate_window")  # fmt: skip
+                    "imagination_gate_scale", "imagination_gate_window")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"agent.{name} must be positive, got {getattr(self, name)}")
-        if self.model_cloud_head < 0:
-            raise ConfigError(f"agent.model_cloud_head must be >= 0, got {self.model_cloud_head}")
-        if self.model_cloud_head and not (
-            self.model_residual
-            and self.model_covariance == "diagonal"
-            and self.model_scales == "dropout"
-        ):
-            raise ConfigError(
-                "agent.model_cloud_head needs model_residual true, model_covariance diagonal "
-                "and model_scales dropout"
-            )
         if self.value_expansion and self.method != "augmented":
             raise ConfigError("agent.value_expansion needs M: it is for method augmented")
         if not 0 <= self.value_expansion <= 3:
@@ -654,101 +602,54 @@ def check_imagines(config: AgentConfig) -> AgentConfig:
     return config
 
 
-AGENT_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
-    # fast: M gets 2 updates of 128 per time step instead of 16 of 512 (the paper's M costs ~37
-    # GFLOP per real step), and 20% dropout in M instead of 50%: with 32x fewer samples, 50% dropout
-    # leaves the MDN's scales wide (samples land in the wrong macrostate) and its accuracy 15 points
-    # lower at I_start (README, issue 4 notes). The r-network has 3 x 128 units instead of 3 x 512
-    # (it was 70% of M's FLOPs; it reads 3 reward levels from an 8-D state and is right for 98% of
-    # next states either way). Imagination hands C M's most likely next state (the mean of its
-    # heaviest component) instead of a draw from the whole mixture: on `hard` at 2000 episodes the
-    # imagined transitions are then right 99.5% of the time instead of ~77%, and at 1500 episodes
-    # the augmented agent is 10-11 points above the paper's draw on both tasks (level by 2000;
-    # README, issue 14). Imagination is Dyna's: from episode 100, each rollout from a state of M_R
-    # (not the current one), and r and d get 6 more updates per step alone (8 in all; with 2 they
-    # predict +50 as 3-7 for the goal states at 400 episodes, so imagination cannot carry the goal's
-    # value back). 5 seeds (README, issue 14 round 6): hard 45.8 / 91.8 at 1000 / 2000 episodes
-    # against the baseline's 28.3 / 80.6 and the former fast agent's 32.2 / 90.0; original 61.6 /
-    # 97.7 against 44.6 / 88.3. M predicts each action's change of state (model_residual) with 20%
-    # dropout in its three networks: from the terminal states it never trained on M is right on
-    # 80.7% (hard) and 78.6% (original) of transitions instead of 47.0% and 49.3%, at no measured
-    # cost in success (hard 42.8 / 90.6, original 71.1 / 98.2; README, issue 14 round 7). From
-    # I_start the trained C acts on a belief b_t = 0.5 m_t + 0.5 mu_t filtered through M's
-    # prediction (learning/belief.py; it trains acting on mu): on the 10 agents of round 10 at
-    # 2000 episodes, success on hard 92.4 -> 96.7, original 95.0 -> 96.8, every agent up (README,
-    # issue 14 round 11). C's targets for real transitions look 2 steps further through M
-    # (value_expansion, MVE; the augmented agent's only, the baseline has no M): with the belief,
-    # hard 93.7 -> 96.7 at 2000 episodes (s58 -> s59, 5 seeds; README, issue 14 round 11).
-    # C makes three updates on imagined batches per real step (N_I = 3, the paper's 1): 5 seeds,
-    # V from the fast command, on hard 44.6 -> 70.5 at 1000 episodes and 81.4 -> 95.6 at 1500
-    # (s59 -> s70), its IQM interval above the baseline's at 1000-2000; on original the area under
-    # the curve 69.5 -> 73.6 (N_I = 2: 67.4); with M handicapped it stays above the baseline at
-    # every budget, where N_I = 2 fell 2 points below it at 2000 (README, issue 14 round 14).
-    # The augmented agent's C has a target network copied every 100 C updates (the paper's C has
-    # none): with four C updates a step and MVE's targets bootstrapping through M, C without it
-    # diverged in one seed of ten on `hard` (TD loss 3.7e5, success 4.9%) with another
-    # machine's fast V. With it (s86, 10 seeds, same V) no seed diverges: hard 57.3 / 92.1 at
-    # 1000 / 2000 episodes (s70: 62.0 / 83.5), original 82.5 / 98.4 (s70, 5 seeds: 75.2 / 96.5),
-    # the baseline 29.0 / 79.0 and 51.3 / 88.9 (README, issue 14 round 18). The baseline keeps
-    # the paper's C: with the same target network it learns slower (s88: hard 69.5, original
-    # 78.2 at 2000 episodes), so the paper's C is the stronger baseline.
-    # M is an ensemble of 5 MDNs (each with its own initialization and bootstrap batches, a
-    # rollout following a member drawn per step), and imagination keeps only the transitions
-    # whose members' disagreement is below the 95th percentile of recent first steps' (the mask
-    # gate, M2AC's). 10 seeds, the same V (s93 against s86; README, issue 15 round 19): the
-    # area under the success curve at 250-2000 episodes 58.3 -> 61.1 on hard, 69.0 -> 70.3 on
-    # original (baseline 39.8, 54.7); hard 7.5 -> 9.7 at 250 episodes (Welch p < 0.005),
-    # 92.1 -> 94.2 at 2000, its IQM interval above the baseline's at 250-1500; original level
-    # at every budget. A step costs 1.5-1.8x the single M's.
-    # Everything else is the paper's.
+M_FAST = {"model_updates": 2, "model_batch": 128, "dropout": 0.2, "model_residual": True,
+          "reward_hidden": 128, "reward_updates": 6}  # fmt: skip
+"""The `fast` preset's M: N_E = 2 updates of 128 (the paper: 16 of 512) with 20% dropout, a
+residual MDN, a 3 x 128 r-network and 6 more updates of r and d alone per step."""
+
+IMAGINATION_FAST = {"imagination_draw": "mode", "imagination_start": 100,
+                    "imagination_from": "memory", "n_imaginary_updates": 3}  # fmt: skip
+"""The `fast` preset's imagination: M's mode, from episode 100, Dyna's starts (states of M_R),
+N_I = 3 updates of C on imagined batches per step."""
+
+SMOKE = {"episodes": 300, "model_updates": 1, "model_batch": 64, "imagination_start": 100,
+         "log_every": 25, "accuracy_every": 100, "checkpoint_every": 100, "eval_episodes": 200,
+         "real_memory": 5000}  # fmt: skip
+"""The `smoke` preset, the same for both methods: the paper's agent, small and short, to check
+that everything runs (tests, `imagine reproduce --preset smoke`)."""
+
+AGENT_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    # preset -> method -> the fields it sets over AgentConfig's defaults (the paper's settings).
+    # The baseline has no M: the M and imagination fields it holds do nothing unless it trains
+    # M anyway (baseline_trains_m) or is imagination's control (real_in_place_of_imagined).
+    # How `fast` came to be, round by round: docs/research/fast-preset-history.md.
+    "paper": {"baseline": {}, "augmented": {}},
     "fast": {
-        "model_updates": 2,
-        "model_batch": 128,
-        "dropout": 0.2,
-        "model_residual": True,
-        "reward_hidden": 128,
-        "imagination_draw": "mode",
-        "imagination_start": 100,
-        "imagination_from": "memory",
-        "reward_updates": 6,
-        "belief": "filtered",
-        "value_expansion": 2,
-        "n_imaginary_updates": 3,
-        "target_update_period": 100,
-        "model_ensemble": 5,
-        "imagination_gate": "mask",
+        "baseline": {**M_FAST, **IMAGINATION_FAST},
+        "augmented": {
+            **M_FAST,
+            **IMAGINATION_FAST,
+            "belief": "filtered",  # C acts on b_t = 0.5 m_t + 0.5 mu_t from I_start
+            "value_expansion": 2,  # MVE: C's real targets look H = 2 steps through M
+            "target_update_period": 100,  # C with a target network (the paper's has none)
+            "model_ensemble": 5,  # five MDNs ...
+            "imagination_gate": "mask",  # ... behind M2AC's mask on their disagreement
+        },
     },
-    "smoke": {
-        "episodes": 300,
-        "model_updates": 1,
-        "model_batch": 64,
-        "imagination_start": 100,
-        "log_every": 25,
-        "accuracy_every": 100,
-        "checkpoint_every": 100,
-        "eval_episodes": 200,
-        "real_memory": 5000,
-    },
+    "smoke": {"baseline": SMOKE, "augmented": SMOKE},
 }
+"""Presets as data, the baseline's and the augmented agent's settings side by side."""
+
+CONTROL_FROM_AUGMENTED = ("target_update_period",)
+"""What imagination's control (a baseline with ``real_in_place_of_imagined``) takes from its
+preset's augmented agent: its C, so that the two differ only in where their extra batches come
+from."""
 
 
-AUGMENTED_ONLY = ("value_expansion", "belief", "belief_weight", "belief_in_training")
-"""Settings of the augmented agent alone (they use M): a preset's baseline goes without them,
-and so does a study's (:func:`for_method`). Given to one baseline explicitly, value_expansion
-is an error and the belief's fields do nothing."""
-
-
-TRUST_ONLY = ("model_ensemble", "imagination_gate", "imagination_adaptive")
-"""The `fast` augmented agent's model trust (issue 15): an ensemble of Ms and a gate on what it
-imagines. A baseline has no M to ensemble and no imagination to gate."""
-
-
-PRESET_AUGMENTED_ONLY = (*AUGMENTED_ONLY, *TRUST_ONLY, "target_update_period")
-"""A preset's values that its baseline does not take: the augmented agent's own settings, its
-model trust, and the `fast` augmented agent's target network (the baseline keeps the paper's
-C, which learns faster without one; imagination's control, ``real_in_place_of_imagined``,
-takes the augmented agent's C). Given explicitly (``--set``), they apply to the baseline too."""
+AUGMENTED_ONLY = ("value_expansion", "belief", "belief_weight")
+"""Settings of the augmented agent alone (they use M): a study's baseline goes without them
+(:func:`for_method`). Given to one baseline explicitly, value_expansion is an error and the
+belief's fields do nothing."""
 
 
 def for_method(overrides: dict[str, Any], method: str) -> dict[str, Any]:
@@ -761,12 +662,12 @@ def for_method(overrides: dict[str, Any], method: str) -> dict[str, Any]:
 
 
 def agent_preset(preset: str = "fast", **overrides: Any) -> AgentConfig:
-    """The Algorithm 1 config of a preset, with ``overrides`` applied (validated)."""
-    values = {**AGENT_PRESETS[check_preset(preset)], **overrides}
-    if values.get("method", AgentConfig.method) != "augmented":
-        # imagination's control (real updates in place of imagined ones) keeps the augmented
-        # agent's C, so that the two differ in where their extra batches come from alone
-        control = values.get("real_in_place_of_imagined", False)
-        drop = (*AUGMENTED_ONLY, *TRUST_ONLY) if control else PRESET_AUGMENTED_ONLY
-        values = {k: v for k, v in values.items() if k not in drop or k in overrides}
-    return from_dict(AgentConfig, values, "agent")
+    """The Algorithm 1 config of a preset for ``overrides``'s method (default augmented), with
+    ``overrides`` applied (validated)."""
+    by_method = AGENT_PRESETS[check_preset(preset)]
+    method = overrides.get("method", AgentConfig.method)
+    values = dict(by_method.get(method, {}))
+    if method == "baseline" and overrides.get("real_in_place_of_imagined", False):
+        values |= {k: by_method["augmented"][k] for k in CONTROL_FROM_AUGMENTED
+                   if k in by_method["augmented"]}  # fmt: skip
+    return from_dict(AgentConfig, {**values, **overrides}, "agent")

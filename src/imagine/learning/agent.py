@@ -68,8 +68,6 @@ def generic_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
             f"{config.env} has {spec.kind} observations: set agent.encoder={needed} "
             f"(got {config.encoder})"
         )
-    if config.latent_space != "posterior":
-        raise ConfigError("agent.latent_space=standardized is for V's latent (GesturePuzzle)")
     if needed == "vae":
         return image_encoder(config, device)
     space = spec.observation_space

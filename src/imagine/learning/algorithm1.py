@@ -41,9 +41,7 @@ SUPPORTED = {"imagination_model": ("learned",), "imagination_actions": ("policy"
              "value_expansion_weighting": ("mve",), "value_expansion_members": ("first",),
              "real_in_place_of_imagined": (False,), "controller_input": ("mu",),
              "model_latents": ("sample",), "double_dqn": (False,), "matmul_dtype": ("float32",),
-             "init_from": (None,), "latent_space": ("posterior",), "belief_in_training": (False,),
-             "model_covariance": ("diagonal",), "model_scales": ("dropout",),
-             "model_cloud_head": (0,), "imagination_temperature": (1.0,)}  # fmt: skip
+             "init_from": (None,)}  # fmt: skip
 """The values of the settings that the reference implements."""
 
 

@@ -64,7 +64,6 @@ def imagine_rollouts(
     generators: Sequence[torch.Generator | None],
     draw: str = "sample",
     scale: torch.Tensor | None = None,
-    temperature: float = 1.0,
     actions: str = "policy",
 ) -> list[dict[str, torch.Tensor] | None]:
     """For each agent i with a generator: the transitions ``(z, action, next_z, reward, done,
@@ -73,7 +72,7 @@ def imagine_rollouts(
     from each of ``N(mu[i, b], sigma[i, b])`` (mu, sigma: (P, B, latent_dim)), in the order
     imagined (step by step, rollouts in order within a step);
     None for agents without one. ``draw``: each next state a sample of M's mixture (the
-    paper; at ``temperature``, :func:`~imagine.models.world_model.sample_mixture`), or its mode (the
+    paper; :func:`~imagine.models.world_model.sample_mixture`), or its mode (the
     mean of the heaviest component). ``scale``: the unit of
     disagreement, per agent (P,) or rollout (P, B); default :func:`posterior_scale` of
     ``sigma`` (pass V's own when ``sigma`` is not V's). ``actions``: policy (C acts
@@ -101,7 +100,7 @@ def imagine_rollouts(
         flags = going.tolist()  # one read of the device per depth step
         drawing = [g if flags[i] else None for i, g in enumerate(generators)]
         action = controller.act(z, eps, drawing) if fixed is None else fixed
-        next_z, spread = model.predict(z, action, drawing, draw, temperature)
+        next_z, spread = model.predict(z, action, drawing, draw)
         done = model.is_terminal(next_z)
         reward = model.predict_reward(next_z)
         steps.append((z, action, next_z, reward, done.float(), spread / unit, rollout,
@@ -159,10 +158,8 @@ class SplitModel:
         self.state_from, self.reward_from = state_from, reward_from
         self.end_from = reward_from if end_from is None else end_from
 
-    def predict(
-        self, z, action, generators=(), draw: str = "mode", temperature: float = 1.0
-    ) -> Prediction:
-        return self.state_from.predict(z, action, generators, draw, temperature)
+    def predict(self, z, action, generators=(), draw: str = "mode") -> Prediction:
+        return self.state_from.predict(z, action, generators, draw)
 
     def is_terminal(self, z: torch.Tensor) -> torch.Tensor:
         return self.end_from.is_terminal(z)

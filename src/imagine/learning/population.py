@@ -38,7 +38,6 @@ from imagine.checkpoint import (
 from imagine.config import AgentConfig
 from imagine.envs.spec import EnvSpec, make_spec
 from imagine.errors import CheckpointError, ConfigError
-from imagine.learning.belief import fuse
 from imagine.learning.extras import extras_of
 from imagine.learning.gate import (
     TRUST_RECENT,
@@ -80,10 +79,7 @@ def new_networks(
                        terminal_hidden=config.terminal_hidden,
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,
-                       ensemble=config.model_ensemble,
-                       covariance=config.model_covariance,
-                       scales=config.model_scales,
-                       cloud_hidden=config.model_cloud_head)  # fmt: skip
+                       ensemble=config.model_ensemble)  # fmt: skip
     return controller, model
 
 
@@ -155,7 +151,6 @@ class Population:
         self._starting = [True] * P  # the next step starts a new episode
         self.mu = torch.zeros(P, d, device=self.device)
         self.sigma = torch.zeros(P, d, device=self.device)
-        self.belief = torch.zeros(P, d, device=self.device)  # what C acts on (learning/belief)
         self._episode = [EpisodeTotals() for _ in range(P)]
         self._loss_sum: dict[str, torch.Tensor] = {}
         self._loss_count: dict[str, torch.Tensor] = {}
@@ -187,7 +182,7 @@ class Population:
         rows = torch.as_tensor(live, device=self.device)
         gens = [g if self.active[i] else None for i, g in enumerate(self.generators)]
         eps = [self.epsilon(i) for i in range(self.size)]
-        action = self.controller.act(self.belief.unsqueeze(1), eps, gens)[:, 0]
+        action = self.controller.act(self.mu.unsqueeze(1), eps, gens)[:, 0]  # C acts on mu_t
         obs, reward, terminated, truncated, info = self.envs.step(action.cpu().numpy())
         self._env_done |= terminated | truncated
         won = self.spec.success(reward, info)
@@ -212,7 +207,6 @@ class Population:
             past = [i for i in live if self.episode[i] >= c.imagination_start]
             self._learn_from_real(past, c.n_imaginary_updates, "losses/controller_real_extra")
         self._imagine(live, eps)
-        self.belief[rows] = self._next_belief(live, action, next_mu)
         self.mu[rows], self.sigma[rows] = next_mu, next_sigma
         ended = []
         for i in live:
@@ -247,33 +241,9 @@ class Population:
         rows = torch.as_tensor(starting, device=self.device)
         x, extra = self.spec.encoder_input(obs, info)
         self.mu[rows], self.sigma[rows] = self._encode(starting, x, extra)
-        self.belief[rows] = self.mu[rows]  # b_0 = mu_0
         for i in starting:
             self._starting[i] = False
             self._episode[i] = EpisodeTotals()
-
-    def _next_belief(self, live: list[int], action: torch.Tensor, next_mu: torch.Tensor):
-        """The beliefs of the ``live`` agents after their step (``next_mu``: V's means of their
-        new observations): b' = w m + (1 - w) mu' (m: M's component for (b, a) that best
-        explains mu', :mod:`imagine.learning.belief`) for an agent that filters
-        (``filter_weight`` w > 0) while it trains (``belief_in_training``) and imagines
-        already (from I_start), else mu' (:mod:`imagine.learning.belief`)."""
-        weights = [self.configs[i].filter_weight * self.configs[i].belief_in_training
-                   for i in live]  # fmt: skip
-        filtering = [
-            k for k, i in enumerate(live)
-            if weights[k] > 0 and self.episode[i] >= self.configs[i].imagination_start
-        ]  # fmt: skip
-        if not filtering:
-            return next_mu
-        observed = self.mu.clone()
-        observed[torch.as_tensor(live, device=self.device)] = next_mu
-        m = self.model.explain(self.belief.unsqueeze(1), action.view(-1, 1), observed.unsqueeze(1))
-        m = m[:, 0]
-        belief = next_mu.clone()
-        for k in filtering:
-            belief[k] = fuse(m[live[k]], next_mu[k], weights[k])
-        return belief
 
     def _encode(self, agents: list[int], x, extra) -> tuple[torch.Tensor, torch.Tensor]:
         """The encoder's posterior of the agents' observations (``x``, ``extra``: what the
@@ -346,7 +316,7 @@ class Population:
             made = imagine_rollouts(
                 self.imagined_by, self.controller, mu, sigma, c.imagination_breadth,
                 c.imagination_depth, eps, drawing, draw=c.imagination_draw, scale=scale,
-                temperature=c.imagination_temperature, actions=kind,
+                actions=kind,
             )  # fmt: skip
             rollouts = [m if actions.get(i) == kind else r
                         for i, (m, r) in enumerate(zip(made, rollouts, strict=True))]  # fmt: skip

@@ -40,9 +40,8 @@ class PopulationResult:
     """A line for each agent that failed (by index), naming its folder."""
 
 
-TRANSFERRED = ("encoder", "vae_run", "latent_space", "n_components", "model_residual",
-               "model_ensemble", "model_covariance", "model_scales",
-               "model_cloud_head")  # fmt: skip
+TRANSFERRED = ("encoder", "vae_run", "n_components", "model_residual",
+               "model_ensemble")  # fmt: skip
 """What a run that starts M (``init_from``) must share with the agent: M's inputs and form."""
 
 

@@ -5,17 +5,13 @@ Three networks learned online from the real memory:
 - the MDN, p(z_{t+1} | z_t, a_t) as a mixture of ``K`` diagonal Gaussians (paper: 5), from 3
   hidden layers of 256 ReLU units with 50% dropout, with three heads: mixture weights (softmax),
   means (linear) and scales (softplus plus a floor, so they stay positive and the likelihood
-  finite where the paper's variance head is linear); with ``covariance="full"`` a fourth head
-  gives each component's Cholesky factor below its diagonal, L_k = diag(sigma_k) + tril_k, so
-  that component k is N(mu_k, L_k L_k^T) (a full covariance: V's dimensions move together
-  from image to image, which a diagonal Gaussian cannot follow);
+  finite where the paper's variance head is linear);
 - the r-network, the reward from the state alone (3 x 512 ReLU, 50% dropout, log-cosh loss);
 - the d-network, whether a state is terminal, from the state alone (2 x 256 ReLU, 50% dropout,
   binary cross-entropy).
 
 The MDN's loss is the negative log-likelihood of equation (5),
--log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp (with a full covariance,
-N(z_{t+1}; mu_k, L_k L_k^T)).
+-log sum_k pi_k N(z_{t+1}; mu_k, sigma_k^2), computed with log-sum-exp.
 
 :class:`WorldModel` is one agent's M (what a checkpoint holds, what planning and the accuracy
 measurements use); :class:`PopulationWorldModel` is the M of P agents trained together (weights
@@ -30,7 +26,6 @@ does not know. The paper's M is K = 1.
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -58,26 +53,7 @@ class Mixture(NamedTuple):
     mu: torch.Tensor
     """(..., K, D) component means."""
     sigma: torch.Tensor
-    """(..., K, D) component scales (standard deviations); with ``tril``, the diagonal of each
-    component's Cholesky factor."""
-    tril: torch.Tensor | None = None
-    """(..., K, D, D) a full-covariance mixture's Cholesky factors below their diagonal (zero
-    on and above it): component k is N(mu_k, L_k L_k^T) with L_k = diag(sigma_k) + tril_k.
-    None: diagonal Gaussians (the paper)."""
-
-
-COVARIANCES = ("diagonal", "full")
-"""The MDN's component covariances (``AgentConfig.model_covariance``)."""
-
-SCALE_FITS = ("dropout", "clean")
-"""Which network the scales of M's predictions are fitted on (``AgentConfig.model_scales``):
-``dropout``, the network with dropout's masks, beside the means (the paper); ``clean``, the
-network without them, the one that predicts (:class:`MDN`, ``clean_scales``)."""
-
-
-def tril_size(latent_dim: int) -> int:
-    """Entries of a D x D Cholesky factor strictly below its diagonal, D (D - 1) / 2."""
-    return latent_dim * (latent_dim - 1) // 2
+    """(..., K, D) component scales (standard deviations) of diagonal Gaussians."""
 
 
 def mixture_from_heads(
@@ -87,39 +63,19 @@ def mixture_from_heads(
     latent_dim: int,
     min_sigma: float,
     z: torch.Tensor | None = None,
-    tril: torch.Tensor | None = None,
 ) -> Mixture:
-    """The mixture from the heads' outputs (..., K), (..., K*D), (..., K*D) and, for a full
-    covariance, (..., K*D(D-1)/2) (each component's factor below the diagonal, row by row).
-    With the current state ``z`` (..., D) given, the mean head predicts each component's change
-    of state (residual M): mu_k = z + head_k."""
+    """The mixture from the heads' outputs (..., K), (..., K*D), (..., K*D). With the current
+    state ``z`` (..., D) given, the mean head predicts each component's change of state
+    (residual M): mu_k = z + head_k."""
     shape = (*pi.shape, latent_dim)
     means = mu.view(shape) if z is None else z.unsqueeze(-2) + mu.view(shape)
-    factor = None
-    if tril is not None:
-        rows, cols = torch.tril_indices(latent_dim, latent_dim, -1, device=tril.device)
-        factor = tril.new_zeros(*shape, latent_dim)
-        factor[..., rows, cols] = tril.view(*pi.shape, -1)
-    return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma,
-                   factor)  # fmt: skip
-
-
-def scale_tril(m: Mixture) -> torch.Tensor:
-    """Each component's Cholesky factor L_k (..., K, D, D): diag(sigma_k) (+ tril_k)."""
-    diagonal = torch.diag_embed(m.sigma)
-    return diagonal if m.tril is None else diagonal + m.tril
+    return Mixture(F.log_softmax(pi, -1), means, F.softplus(sigma).view(shape) + min_sigma)
 
 
 def component_log_normal(m: Mixture, x: torch.Tensor) -> torch.Tensor:
-    """log N(x; mu_k, Sigma_k) of each component (..., K) for points x (..., D):
-    -(|L_k^-1 (x - mu_k)|^2 + D log 2 pi) / 2 - sum_d log sigma_kd, where L_k = diag(sigma_k)
-    for a diagonal component (the paper's) and log det L_k = sum_d log sigma_kd either way."""
-    diff = x.unsqueeze(-2) - m.mu
-    if m.tril is None:
-        white = diff / m.sigma
-    else:
-        white = torch.linalg.solve_triangular(scale_tril(m), diff.unsqueeze(-1),
-                                              upper=False).squeeze(-1)  # fmt: skip
+    """log N(x; mu_k, diag(sigma_k^2)) of each component (..., K) for points x (..., D):
+    -(|(x - mu_k) / sigma_k|^2 + D log 2 pi) / 2 - sum_d log sigma_kd."""
+    white = (x.unsqueeze(-2) - m.mu) / m.sigma
     return -0.5 * (white.square() + LOG_2PI).sum(-1) - m.sigma.log().sum(-1)
 
 
@@ -127,19 +83,11 @@ def sample_mixture(
     m: Mixture,
     generator: torch.Generator,
     component: str = "weights",
-    temperature: float = 1.0,
     spread: bool = True,
 ) -> torch.Tensor:
     """One draw per row of mixtures (N, ...): a component from the weights (or, with
     ``component="heaviest"``, the heaviest one), then a draw from its Gaussian (without
-    ``spread``: its mean). A ``temperature`` tau other than 1 draws from the tempered mixture of
-    World Models (Ha and Schmidhuber 2018): weights proportional to pi_k^(1/tau), scales
-    sigma_k sqrt(tau); tau -> 0 approaches the mode, tau = 1 is the mixture itself (and the
-    same draws)."""
-    if temperature != 1.0:
-        root = math.sqrt(temperature)
-        m = Mixture(torch.log_softmax(m.log_pi / temperature, -1), m.mu, m.sigma * root,
-                    None if m.tril is None else m.tril * root)  # fmt: skip
+    ``spread``: its mean)."""
     if component == "heaviest":
         k = m.log_pi.argmax(-1, keepdim=True)  # (N, 1)
     else:
@@ -150,27 +98,16 @@ def sample_mixture(
     if not spread:
         return mu
     eps = torch.randn(mu.shape, generator=generator, device=mu.device)
-    if m.tril is None:
-        return mu + sigma * eps
-    tril = m.tril.gather(1, k[..., None, None].expand(-1, 1, D, D)).squeeze(1)  # (N, D, D)
-    return mu + sigma * eps + (tril @ eps.unsqueeze(-1)).squeeze(-1)
+    return mu + sigma * eps
 
 
 def mixture_nll(mixture: Mixture, target: torch.Tensor) -> torch.Tensor:
-    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 5), per sample; with a
-    full covariance, -log sum_k pi_k N(target; mu_k, L_k L_k^T)."""
+    """-log sum_k pi_k prod_d N(target_d; mu_kd, sigma_kd^2) (equation 5), per sample."""
     return -torch.logsumexp(mixture.log_pi + component_log_normal(mixture, target), dim=-1)
 
 
 class MDN(nn.Module):
-    """The mixture density network over next latent states.
-
-    With ``cloud_hidden`` N > 0 (``AgentConfig.model_cloud_head``; residual and diagonal only)
-    the mixture is a function of one predicted point: the body predicts the change of state,
-    c = z + f(z, a), and a *cloud head* g of c alone (N x N ReLU units) gives the weights
-    pi_k(c), means c + o_k(c) and scales sigma_k(c). The spread of next latents around a
-    macrostate is that macrostate's (its images' variety in V), whichever (state, action) led
-    there, so every transition into it trains the same g (README, issue 14 round 26)."""
+    """The mixture density network over next latent states (equation 5's p(z_{t+1} | z_t, a_t))."""
 
     def __init__(
         self,
@@ -182,57 +119,24 @@ class MDN(nn.Module):
         dropout: float = 0.5,
         min_sigma: float = 1e-3,
         residual: bool = False,
-        covariance: str = "diagonal",
-        clean_scales: bool = False,
-        cloud_hidden: int = 0,
     ) -> None:
         super().__init__()
-        if covariance not in COVARIANCES:
-            raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
-        if cloud_hidden and not (residual and covariance == "diagonal" and not clean_scales):
-            raise ValueError("a cloud head needs a residual, diagonal MDN without clean scales")
         self.latent_dim, self.n_actions, self.n_components = latent_dim, n_actions, n_components
         self.min_sigma, self.residual = min_sigma, residual
         self.body = mlp([latent_dim + n_actions, *[hidden] * layers], dropout)
         self.body.append(nn.ReLU())
         if dropout > 0:
             self.body.append(nn.Dropout(dropout))
-        if cloud_hidden:  # the cloud head: the mixture is a function of one predicted point
-            self.point_head = nn.Linear(hidden, latent_dim)
-            self.cloud = mlp([latent_dim, cloud_hidden, cloud_hidden])
-            self.cloud.append(nn.ReLU())
-            hidden = cloud_hidden
         self.pi_head = nn.Linear(hidden, n_components)
         self.mu_head = nn.Linear(hidden, n_components * latent_dim)
         self.sigma_head = nn.Linear(hidden, n_components * latent_dim)
-        if covariance == "full":
-            # starts at zero: a full-covariance MDN begins as the diagonal one
-            self.tril_head = nn.Linear(hidden, n_components * tril_size(latent_dim))
-            nn.init.zeros_(self.tril_head.weight)
-            nn.init.zeros_(self.tril_head.bias)
-        if clean_scales:  # copies: no random draw, the other networks start as without them
-            self.clean_sigma_head = copy.deepcopy(self.sigma_head)
-            if covariance == "full":
-                self.clean_tril_head = copy.deepcopy(self.tril_head)
 
     def forward(self, z: torch.Tensor, action: torch.Tensor) -> Mixture:
-        """The mixture for latents (N, D) and integer actions (N,); in eval mode (no dropout)
-        with the clean scale heads, where there are (``clean_scales``)."""
+        """The mixture for latents (N, D) and integer actions (N,)."""
         h = self.body(torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1))
-        if hasattr(self, "point_head"):
-            change = self.point_head(h)
-            h = self.cloud(z + change)
-            mu = self.mu_head(h) + change.repeat(1, self.n_components)
-            return mixture_from_heads(self.pi_head(h), mu, self.sigma_head(h), self.latent_dim,
-                                      self.min_sigma, z)  # fmt: skip
-        clean = not self.training and hasattr(self, "clean_sigma_head")
-        sigma = (self.clean_sigma_head if clean else self.sigma_head)(h)
-        tril = None
-        if hasattr(self, "tril_head"):
-            tril = (self.clean_tril_head if clean else self.tril_head)(h)
-        return mixture_from_heads(self.pi_head(h), self.mu_head(h), sigma, self.latent_dim,
-                                  self.min_sigma, z if self.residual else None,
-                                  tril)  # fmt: skip
+        return mixture_from_heads(self.pi_head(h), self.mu_head(h), self.sigma_head(h),
+                                  self.latent_dim, self.min_sigma,
+                                  z if self.residual else None)  # fmt: skip
 
     def loss(self, z: torch.Tensor, action: torch.Tensor, next_z: torch.Tensor) -> torch.Tensor:
         return mixture_nll(self(z, action), next_z).mean()
@@ -243,11 +147,10 @@ class MDN(nn.Module):
         z: torch.Tensor,
         action: torch.Tensor,
         generator: torch.Generator,
-        temperature: float = 1.0,
     ) -> torch.Tensor:
-        """Draw z_{t+1}: a component from the weights, then from its Gaussian (at
-        ``temperature``, :func:`sample_mixture`)."""
-        return sample_mixture(self(z, action), generator, temperature=temperature)
+        """Draw z_{t+1}: a component from the weights, then from its Gaussian
+        (:func:`sample_mixture`)."""
+        return sample_mixture(self(z, action), generator)
 
     @torch.no_grad()
     def explain(
@@ -329,21 +232,14 @@ class WorldModel(nn.Module):
         residual: bool = False,
         ensemble: int = 1,
         reward_dropout: float | None = None,
-        covariance: str = "diagonal",
-        scales: str = "dropout",
         terminal_hidden: int = 256,
-        cloud_hidden: int = 0,
     ) -> None:
         super().__init__()
-        if scales not in SCALE_FITS:
-            raise ValueError(f"scales must be one of {SCALE_FITS}, got {scales!r}")
         self.dropout = dropout
         self.reward_dropout = dropout if reward_dropout is None else reward_dropout
 
         def mdn() -> MDN:
-            return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual,
-                       covariance=covariance, clean_scales=scales == "clean",
-                       cloud_hidden=cloud_hidden)  # fmt: skip
+            return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual)
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)
@@ -398,48 +294,23 @@ def members_spread(modes: torch.Tensor) -> torch.Tensor:
 
 class StackedMDN(nn.Module):
     """Many MDNs of one architecture as one stack (:mod:`imagine.models.stacked`): the body and
-    heads of row r are those of ``mdns[r]`` (three heads, four with a full covariance, and the
-    clean scale heads, :class:`MDN`'s ``clean_scales``)."""
+    three heads of row r are those of ``mdns[r]``."""
 
     def __init__(self, mdns: Sequence[MDN], dropout: float) -> None:
         super().__init__()
         # registered in MDN's parameter order (export_agent relies on it)
         self.body = StackedMLP([m.body for m in mdns], dropout, activate_last=True)
-        if hasattr(mdns[0], "point_head"):
-            self.point_head = StackedLinear([m.point_head for m in mdns])
-            self.cloud = StackedMLP([m.cloud for m in mdns], 0.0, activate_last=True)
         self.pi_head = StackedLinear([m.pi_head for m in mdns])
         self.mu_head = StackedLinear([m.mu_head for m in mdns])
         self.sigma_head = StackedLinear([m.sigma_head for m in mdns])
-        if hasattr(mdns[0], "tril_head"):
-            self.tril_head = StackedLinear([m.tril_head for m in mdns])
-        self.clean_scales = hasattr(mdns[0], "clean_sigma_head")
-        if self.clean_scales:
-            self.clean_sigma_head = StackedLinear([m.clean_sigma_head for m in mdns])
-            if hasattr(mdns[0], "clean_tril_head"):
-                self.clean_tril_head = StackedLinear([m.clean_tril_head for m in mdns])
 
     def forward(
         self, x: torch.Tensor, generators: Sequence[torch.Generator | None] | None = None
     ) -> tuple[torch.Tensor, ...]:
         """The heads' outputs for inputs (R, N, in) (one row of networks each); dropout with
-        ``generators`` (one per row), else (the network that predicts) the clean scale heads
-        where there are."""
+        ``generators`` (one per row)."""
         h = self.body(x, generators)
-        if not hasattr(self, "point_head"):
-            return self.heads(h, clean=generators is None and self.clean_scales)
-        change = self.point_head(h)  # the cloud head (MDN's cloud_hidden)
-        pi, mu, sigma = self.heads(self.cloud(x[..., : change.shape[-1]] + change))
-        return pi, mu + change.repeat(1, 1, pi.shape[-1]), sigma
-
-    def heads(self, h: torch.Tensor, clean: bool = False) -> tuple[torch.Tensor, ...]:
-        """The heads on the body's features ``h``: weights, means, scales (and factors); with
-        ``clean``, the clean scale heads' scales (and factors)."""
-        sigma = self.clean_sigma_head if clean else self.sigma_head
-        heads = self.pi_head(h), self.mu_head(h), sigma(h)
-        if not hasattr(self, "tril_head"):
-            return heads
-        return (*heads, (self.clean_tril_head if clean else self.tril_head)(h))
+        return self.pi_head(h), self.mu_head(h), self.sigma_head(h)
 
 
 _DRAWS: dict[str, dict[str, Any]] = {
@@ -519,29 +390,9 @@ class PopulationWorldModel(nn.Module):
         return self.mdn(x, self._member_generators(generators))
 
     def _mixture(self, heads: Sequence[torch.Tensor], z: torch.Tensor) -> Mixture:
-        """The mixtures from heads' outputs (a fourth: a full covariance's factors); ``z``: the
-        rows' states, for a residual M."""
-        tril = heads[3] if len(heads) > 3 else None
-        return mixture_from_heads(*heads[:3], self.latent_dim, self.min_sigma,
-                                  z if self.residual else None, tril)  # fmt: skip
-
-    def _clean_scale_nll(
-        self, z: torch.Tensor, action: torch.Tensor, target: torch.Tensor
-    ) -> torch.Tensor:
-        """Equation (6)'s loss (P * K, B) of the network without dropout's masks, the one that
-        predicts, for its clean scale heads alone (``model_scales: clean``): the body, weights
-        and means are held as they are (no gradient), so they learn exactly as the paper's M.
-
-        Dropout's masks move the means from update to update, and the scales learned beside
-        them (equation 5 on the masked network) must cover that jitter too, so at prediction,
-        where the masks are off, they are wider than the next states' spread about the means
-        (README, issue 14, round 13). The clean heads are fitted to that spread."""
-        x = torch.cat([z, F.one_hot(action, self.n_actions).to(z)], dim=-1)
-        with torch.no_grad():
-            h = self.mdn.body(x)  # no generators: no masks
-            held = self.mdn.pi_head(h), self.mdn.mu_head(h)
-        heads = self.mdn.heads(h, clean=True)
-        return mixture_nll(self._mixture((*held, *heads[2:]), z), target).mean(-1)
+        """The mixtures from heads' outputs; ``z``: the rows' states, for a residual M."""
+        return mixture_from_heads(*heads, self.latent_dim, self.min_sigma,
+                                  z if self.residual else None)  # fmt: skip
 
     @torch.no_grad()
     def member_modes(self, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -588,19 +439,17 @@ class PopulationWorldModel(nn.Module):
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None],
         draw: str = "sample",
-        temperature: float = 1.0,
     ) -> Prediction:
         """The next state of rows (P, N, D) for each agent with a generator (zeros for the
         others with the random draws; with ``mode`` every agent gets its mode, of member 0 when
         K > 1), as imagination draws it: a sample of M's mixture, its
         ``mode``, a draw from its heaviest component's Gaussian (``component``) or the mean of
-        a component drawn by its weight (``outcome``), draws at ``temperature``
-        (:func:`sample_mixture`); with K > 1
+        a component drawn by its weight (``outcome``) (:func:`sample_mixture`); with K > 1
         members, each row from the member drawn for it (:meth:`_draw_members`). With the
         members' disagreement about the row."""
         if self.ensemble == 1:
             next_z = self._mode_one(z, action) if draw == "mode" else self._sample_one(
-                z, action, generators, draw, temperature)  # fmt: skip
+                z, action, generators, draw)  # fmt: skip
             return Prediction(next_z, torch.zeros(z.shape[:-1], device=z.device))
         P, N, D = z.shape
         zs, actions = self._each_member(z), self._each_member(action)
@@ -617,7 +466,7 @@ class PopulationWorldModel(nn.Module):
                 if generator is not None:
                     chosen = [h[i, member[i], rows] for h in per_member]
                     next_z[i] = sample_mixture(self._mixture(chosen, z[i]), generator,
-                                               temperature=temperature, **_DRAWS[draw])  # fmt: skip
+                                               **_DRAWS[draw])  # fmt: skip
         return Prediction(next_z, members_spread(modes))
 
     @torch.no_grad()
@@ -647,7 +496,6 @@ class PopulationWorldModel(nn.Module):
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None],
         draw: str = "sample",
-        temperature: float = 1.0,
     ) -> torch.Tensor:
         """:meth:`sample` of a one-member M. The mixture is formed agent by agent: softplus
         rounds some elements differently at a tensor's end, so one agent's few rows must be a
@@ -657,7 +505,7 @@ class PopulationWorldModel(nn.Module):
         for i, generator in enumerate(generators):
             if generator is not None:
                 out[i] = sample_mixture(self._mixture([h[i] for h in heads], z[i]), generator,
-                                        temperature=temperature, **_DRAWS[draw])  # fmt: skip
+                                        **_DRAWS[draw])  # fmt: skip
         return out
 
     @torch.no_grad()
@@ -705,15 +553,13 @@ class PopulationWorldModel(nn.Module):
             next_z = agent_normal(batch["next_mu"], batch["next_sigma"], generators)
         else:
             next_z = batch["next_mu"]
-        losses, scale_nll = {}, None
+        losses = {}
         if mdn:
             member_z, member_next = self._member_rows(z), self._member_rows(next_z)
             member_action = self._member_rows(batch["action"])
             heads = self._heads(member_z, member_action, generators)
             nll = mixture_nll(self._mixture(heads, member_z), member_next).mean(-1)
             losses["mdn"] = nll.view(len(generators), self.ensemble)  # (P, K)
-            if self.mdn.clean_scales:
-                scale_nll = self._clean_scale_nll(member_z, member_action, member_next)
         first = slice(0, batch["action"].shape[1] // (self.ensemble if mdn else 1))  # member 0's
         reward = self.reward(next_z[:, first], generators).squeeze(-1)
         terminal = self.terminal(next_z[:, first], generators).squeeze(-1)
@@ -723,8 +569,6 @@ class PopulationWorldModel(nn.Module):
         ).mean(-1)
         self.optimizer.zero_grad()
         total = sum(loss[agents].sum() for loss in losses.values())
-        if scale_nll is not None:  # the clean scale heads' own loss (not logged)
-            total = total + scale_nll.view(len(generators), self.ensemble)[agents].sum()
         total.backward()
         self.optimizer.step(agents)
         if mdn:

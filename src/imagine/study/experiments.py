@@ -178,6 +178,7 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
         model_accuracy,
     )
     from imagine.learning.training import train_population
+    from imagine.study.provenance import provenance
 
     todo = [job for job in jobs if not job.evaluation_path(budget).is_file()]
     if not todo:
@@ -193,8 +194,7 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
         evaluation = agent_success(agent, agent.config.eval_episodes, EVAL_SEED)
         accuracy = None
         if agent.config.trains_model:
-            accuracy = model_accuracy(agent.model, agent.encoder, job.task, p,
-                                      agent.config.imagination_temperature)  # fmt: skip
+            accuracy = model_accuracy(agent.model, agent.encoder, job.task, p)
         evaluation = {"task": job.task, "method": job.method, "seed": job.seed,
                       "budget": budget, "time_steps": agent.t, **evaluation,
                       "model_accuracy": accuracy}  # fmt: skip
@@ -202,6 +202,7 @@ def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | Non
             evaluation["hand_calibration"] = hand_calibration(agent.model, agent.encoder,
                                                               job.task, p)  # fmt: skip
         evaluation |= studies_of_m(job, agent, budget)
+        evaluation["provenance"] = provenance(agent.config)
         write_json(job.evaluation_path(budget), evaluation)
     return [errors.get(job.name) for job in jobs]
 

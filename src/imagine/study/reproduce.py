@@ -22,7 +22,6 @@ import yaml
 from imagine.checkpoint import atomic_write_text, read_json, write_json
 from imagine.config import (
     AGENT_PRESETS,
-    PRESET_AUGMENTED_ONLY,
     VISION_PRESETS,
     agent_preset,
     check_imagines,
@@ -195,8 +194,10 @@ def random_agents(
 
 def deviations(preset: str) -> list[str]:
     """The preset's departures from the paper's settings, one line each."""
-    lines = [f"- agent `{k}` = {v!r}" + (" (augmented)" if k in PRESET_AUGMENTED_ONLY else "")
-             for k, v in AGENT_PRESETS[preset].items()
+    by_method = AGENT_PRESETS[preset]
+    fields = {**by_method["baseline"], **by_method["augmented"]}
+    lines = [f"- agent `{k}` = {v!r}" + ("" if k in by_method["baseline"] else " (augmented)")
+             for k, v in fields.items()
              if k != "episodes"]  # the budgets set the episodes  # fmt: skip
     lines += [f"- V `{k}` = {v!r}" for k, v in VISION_PRESETS[preset].items()]
     return lines or ["- none: every setting is the paper's"]

@@ -4,13 +4,10 @@ All encoders give ``(mu, sigma)`` for a batch of observations, read a macrostate
 latent (for M's accuracy), and give one reference latent per macrostate (the 192 states M's
 accuracy is measured from). The oracle feeds C and M a fixed random embedding of the true
 macrostate, so the learning of M and C can be tested and studied apart from vision.
-:class:`StandardizedEncoder` wraps either and hands C and M only the dimensions that carry
-something, each scaled to unit spread (``latent_space=standardized``).
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +15,7 @@ import torch
 
 from imagine.envs.gesture_puzzle.rules import all_macrostates, macrostate_index
 from imagine.envs.gesture_puzzle.scene import SceneComposer
-from imagine.models.vision import ACTIVE_VARIANCE, encode_images
+from imagine.models.vision import encode_images
 
 
 def factored_embedding(states: np.ndarray) -> torch.Tensor:
@@ -84,55 +81,3 @@ class VaeEncoder:
 
     def state_latents(self) -> torch.Tensor:
         return self._state_latents.clone()
-
-
-ACTIVE_SPREAD = math.sqrt(ACTIVE_VARIANCE)
-"""A dimension whose reference means spread less than this (std across the macrostates; the
-activity criterion of ``imagine vae report``, :data:`imagine.models.vision.ACTIVE_VARIANCE`, as a
-standard deviation) is collapsed and dropped."""
-
-
-class StandardizedEncoder:
-    """Another encoder's latent, reduced to its active dimensions and standardized:
-    z' = (mu - m) / s on the dimensions where s > :data:`ACTIVE_SPREAD`, with m and s the mean
-    and standard deviation of the encoder's reference latents (one mean latent per macrostate),
-    and sigma' = sigma / s. C and M both work in z'; :meth:`classify` maps back (dropped
-    dimensions at their mean) and asks the wrapped encoder.
-
-    The idea: a beta-VAE's collapsed dimensions hold the prior and nothing else, and its active
-    ones come at whatever scale the KL term left them. Measured with the fast V it makes C
-    *slower* (README, issue 14 round 3): scaling by the spread across macrostates also scales
-    up dimensions that mostly encode the fragment an image shows."""
-
-    def __init__(self, inner) -> None:
-        self.inner = inner
-        reference = inner.state_latents()
-        self.mean = reference.mean(0)
-        self.spread = reference.std(0)
-        keep = self.spread > ACTIVE_SPREAD
-        self.keep = keep if bool(keep.any()) else torch.ones_like(keep)
-        self.latent_dim = int(self.keep.sum())
-        self.inner_dim = int(reference.shape[1])
-
-    def project(self, mu: torch.Tensor, sigma: torch.Tensor | None = None):
-        """(mu', sigma') in the standardized space (sigma' only when sigma is given)."""
-        keep, s = self.keep.to(mu.device), self.spread.to(mu.device)[self.keep]
-        z = (mu[..., keep] - self.mean.to(mu.device)[keep]) / s
-        return z if sigma is None else (z, sigma[..., keep] / s)
-
-    def unproject(self, z: torch.Tensor) -> torch.Tensor:
-        """A latent of the wrapped encoder's space: dropped dimensions at their mean."""
-        full = self.mean.to(z.device).expand(*z.shape[:-1], self.inner_dim).clone()
-        keep = self.keep.to(z.device)
-        full[..., keep] = z * self.spread.to(z.device)[keep] + self.mean.to(z.device)[keep]
-        return full
-
-    @torch.no_grad()
-    def encode(self, images: np.ndarray, states: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.project(*self.inner.encode(images, states))
-
-    def classify(self, z: torch.Tensor) -> torch.Tensor:
-        return self.inner.classify(self.unproject(z))
-
-    def state_latents(self) -> torch.Tensor:
-        return self.project(self.inner.state_latents())

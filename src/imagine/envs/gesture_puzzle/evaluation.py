@@ -114,7 +114,7 @@ def policy_success(
 
 @torch.no_grad()
 def model_accuracy(
-    model: WorldModel, encoder, task: str, hand_switch_prob: float = 0.0, temperature: float = 1.0
+    model: WorldModel, encoder, task: str, hand_switch_prob: float = 0.0
 ) -> dict[str, float]:
     """M's accuracy from each macrostate's reference latent, read back by the encoder's
     classifier (DESIGN.md section 3):
@@ -132,8 +132,6 @@ def model_accuracy(
       (component, then Gaussian; fixed seed): what imagination consumes. With a stochastic
       human (``hand_switch_prob`` > 0) a sample is right when it shows a possible next state
       (the arrows right, the hand anywhere); the most likely next state must keep the hand.
-    - ``transition_sampled_tempered`` (only at a ``temperature`` other than 1, the agent's
-      ``imagination_temperature``): as ``transition_sampled`` with draws at that temperature.
     - ``hand_kept_sampled`` (only with a stochastic human): of the samples with the arrows
       right, the share that keeps the hand, M's probability of a hand that stays (truth:
       1 - ``hand_switch_prob``).
@@ -173,14 +171,6 @@ def model_accuracy(
         "reward": float((reward == rewards(truth[seen], task)).mean()),
         "terminal": float((terminal == is_terminal(truth[seen], task)).mean()),
     }
-    if temperature != 1.0:
-        tempered = model.mdn.sample(z[seen], torch.as_tensor(actions[seen]),
-                                    torch.Generator().manual_seed(0), temperature)  # fmt: skip
-        shown = encoder.classify(tempered).numpy()
-        judged = slice(0, 3) if hand_switch_prob > 0 else slice(0, 4)
-        out["transition_sampled_tempered"] = float(
-            (shown[:, judged] == truth[seen][:, judged]).all(-1).mean()
-        )
     if hand_switch_prob > 0:
         out["hand_kept_sampled"] = (
             float(hand_kept[arrows_right].mean()) if arrows_right.any() else 0.0
@@ -363,7 +353,7 @@ def imagined_transitions(
         model, controller, mu.repeat_interleave(breadth, 0).unsqueeze(0),
         sigma.repeat_interleave(breadth, 0).unsqueeze(0), breadth, c.imagination_depth, [eps],
         [generator], draw=draw or c.imagination_draw, scale=scale,
-        temperature=c.imagination_temperature, actions=actions_at(c, agent.episode),
+        actions=actions_at(c, agent.episode),
     )[0]  # fmt: skip
     state = agent.encoder.classify(rollout["z"]).numpy()
     truth = apply_actions(state, rollout["action"].numpy())

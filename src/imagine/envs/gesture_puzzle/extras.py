@@ -8,7 +8,7 @@ import torch
 
 from imagine.config import AgentConfig
 from imagine.envs.gesture_puzzle import make_composer
-from imagine.envs.gesture_puzzle.encoders import OracleEncoder, StandardizedEncoder, VaeEncoder
+from imagine.envs.gesture_puzzle.encoders import OracleEncoder, VaeEncoder
 from imagine.envs.gesture_puzzle.evaluation import model_accuracy
 from imagine.envs.gesture_puzzle.true_model import TrueLatentModel
 from imagine.errors import ConfigError
@@ -16,26 +16,23 @@ from imagine.learning.extras import EnvExtras
 
 
 def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
-    """``config.encoder`` (V or the oracle), in ``config.latent_space``."""
+    """``config.encoder``: V or the oracle."""
     if config.encoder not in ("vae", "oracle"):
         raise ConfigError(
             f"agent.encoder {config.encoder} is not for {config.env}: use vae or oracle"
         )
     if config.encoder == "oracle":
-        encoder = OracleEncoder(sigma=config.oracle_sigma)
-    elif config.vae_run is None:
+        return OracleEncoder(sigma=config.oracle_sigma)
+    if config.vae_run is None:
         raise ConfigError(
             "agent.encoder is vae but no V run was given (--vae RUN or encoder=oracle)"
         )
-    else:
-        encoder = VaeEncoder(config.vae_run, make_composer(), device=device)
-    return StandardizedEncoder(encoder) if config.latent_space == "standardized" else encoder
+    return VaeEncoder(config.vae_run, make_composer(), device=device)
 
 
 def model_probe(model, encoder, config: AgentConfig) -> dict[str, float]:
     """M's accuracy over the task's 192 x 6 transitions (:func:`model_accuracy`)."""
-    return model_accuracy(model, encoder, config.task, config.hand_switch_prob,
-                          config.imagination_temperature)  # fmt: skip
+    return model_accuracy(model, encoder, config.task, config.hand_switch_prob)
 
 
 def true_model(encoder, envs, config: AgentConfig) -> TrueLatentModel:

@@ -50,7 +50,6 @@ class TrueLatentModel:
         action: torch.Tensor,
         generators: Sequence[torch.Generator | None] = (),
         draw: str = "mode",
-        temperature: float = 1.0,
     ) -> Prediction:
         """The mu of a fresh image of the true next macrostate (or its mean latent); no
         disagreement."""

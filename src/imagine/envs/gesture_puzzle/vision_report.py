@@ -309,8 +309,7 @@ def agent_model_accuracy(run: Path, agent_run: Path) -> dict[str, float]:
     if not agent.config.trains_model:
         raise ConfigError(f"{agent_run} is a baseline run: it has no trained M")
     c = agent.config
-    accuracy = model_accuracy(agent.model, agent.encoder, c.task, c.hand_switch_prob,
-                              c.imagination_temperature)  # fmt: skip
+    accuracy = model_accuracy(agent.model, agent.encoder, c.task, c.hand_switch_prob)
     report = read_json(run / "report.json", "V report")
     report["model_accuracy"] = {"agent": str(agent_run), **accuracy}
     write_json(run / "report.json", report)
