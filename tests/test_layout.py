@@ -1,4 +1,4 @@
-"""The package's layers (DESIGN.md section 5): imports only point down, and nothing imports in
+"""The package's layers (docs/design.md section 5): imports only point down, and nothing imports in
 a cycle, function-level imports included.
 
 Layers, bottom up: the leaves (config, errors, checkpoint, metrics, ...); ``envs`` (the env spec,

@@ -113,9 +113,11 @@ def test_a_killed_study_resumes_without_redoing_finished_runs(tmp_path, stop, wo
         err = (tmp_path / "stderr.txt").read_text()
         assert process.returncode == 128 + stop, err
         assert "worker process died" not in err
+        assert (out / "REPORT.md").is_file()
     else:  # only the main process is told; it stops its workers cleanly
         os.kill(process.pid, signal.SIGTERM)
         assert process.wait(timeout=120) == 128 + signal.SIGTERM
+        assert (out / "REPORT.md").is_file()  # the report of what had finished
     finished = evaluation_times(out)
     assert 0 < len(finished) < 8, "kill the study mid-way"
     contents = {p: Path(p).read_text() for p in finished}

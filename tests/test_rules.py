@@ -1,4 +1,4 @@
-"""The GesturePuzzle state machine against DESIGN.md section 1, case by case."""
+"""The GesturePuzzle state machine against docs/design.md section 1, case by case."""
 
 import numpy as np
 import pytest

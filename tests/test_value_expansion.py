@@ -65,8 +65,9 @@ def test_a_presets_value_expansion_is_the_augmented_agents(monkeypatch):
     """A preset with H > 0 for its augmented agent still has a baseline (which has no M): it
     goes without H, while H given explicitly to a baseline stays an error."""
     smoke = AGENT_PRESETS["smoke"]
-    monkeypatch.setitem(AGENT_PRESETS, "smoke",
-                        {**smoke, "augmented": {**smoke["augmented"], "value_expansion": 2}})
+    monkeypatch.setitem(
+        AGENT_PRESETS, "smoke", {**smoke, "augmented": {**smoke["augmented"], "value_expansion": 2}}
+    )
     assert agent_preset("smoke").value_expansion == 2
     assert agent_preset("smoke", method="baseline").value_expansion == 0
     assert agent_preset("smoke", method="augmented", value_expansion=1).value_expansion == 1

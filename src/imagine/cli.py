@@ -70,7 +70,7 @@ class TaskName(StrEnum):
 
 FragmentsOption = Annotated[
     Path | None,
-    typer.Option(help="Folder of fragment photographs (see README); default: procedural renderer."),
+    typer.Option(help="Folder of fragment photographs (docs/guide.md); default: procedural."),
 ]
 FragmentSeedOption = Annotated[int, typer.Option(min=0, help="Seed of the procedural renderer.")]
 CubeFragmentsOption = Annotated[

@@ -1,9 +1,9 @@
 """Typed configurations and presets.
 
 Each part of the system has one dataclass whose fields are its hyperparameters, each documented
-with the paper's symbol or the DESIGN.md choice it stands for. Presets:
+with the paper's symbol or the docs/design.md choice it stands for. Presets:
 
-- ``paper``: every number of the paper (DESIGN.md section 2).
+- ``paper``: every number of the paper (docs/design.md section 2).
 - ``fast``: the default, sized so the whole study runs on a 2-core CPU; deviations documented.
 - ``smoke``: seconds, for tests.
 
@@ -42,7 +42,7 @@ needs no V (:mod:`imagine.models.encoders`)."""
 
 @dataclass(frozen=True)
 class VisionConfig:
-    """V: the beta-VAE (paper section V-B, Variational Autoencoder; DESIGN.md section 2)."""
+    """V: the beta-VAE (paper section V-B, Variational Autoencoder; docs/design.md section 2)."""
 
     latent_dim: int = 8
     """Size of the latent state z (the paper's 8)."""
@@ -231,9 +231,9 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """Algorithm 1: C, M and the memories (paper section V-B; DESIGN.md section 2).
+    """Algorithm 1: C, M and the memories (paper section V-B; docs/design.md section 2).
 
-    Where the paper is silent the DESIGN.md choice is the default and a field."""
+    Where the paper is silent the docs/design.md choice is the default and a field."""
 
     env: str = "imagine/GesturePuzzle-v0"
     """The environment, as ``gymnasium.make`` takes it (``module:Id`` included): the paper's
@@ -268,7 +268,7 @@ class AgentConfig:
     oracle_sigma: float = 0.05
     """The sigma the oracle encoder reports, so latents can still be re-sampled."""
     gamma: float = 0.99
-    """Discount (the paper does not say; DESIGN.md: 0.99)."""
+    """Discount (the paper does not say; docs/design.md: 0.99)."""
     eps_min: float = 0.001
     """epsilon_min of the exploration schedule."""
     eps_max: float = 0.8
@@ -324,7 +324,8 @@ class AgentConfig:
     it trains (acting on the belief in training too was measured worse: C no longer takes,
     and so never corrects, the actions its values prefer on V's means). With V, a fresh
     image's latent lies about as far from its macrostate's mean as the nearest other
-    macrostate does, and M's prediction of it is near that mean (README, issue 14, round 11)."""
+    macrostate does, and M's prediction of it is near that mean
+    (docs/research/v-fit-for-dynamics.md, round 11)."""
     belief_weight: float = 0.5
     """w of the ``filtered`` belief: the weight of M's prediction against V's observation, in
     [0, 1)."""
@@ -342,7 +343,7 @@ class AgentConfig:
     """With imagination_actions all: the episode from which the agent imagines as the paper
     does instead (policy rollouts, every imagined transition kept, no gate); 0: never. Every
     action's backup fills in what C has not tried while its behaviour is young; once C's own
-    choices are what matter, its policy's rollouts refine them (README, issue 15)."""
+    choices are what matter, its policy's rollouts refine them (docs/research/model-trust.md)."""
     imagination_epsilon: float = -1.0
     """Epsilon of C's choices inside imagined rollouts; -1: the real epsilon of the moment (the
     paper's reading, near 0.001 by I_start, so rollouts follow C's greedy path)."""
@@ -357,7 +358,7 @@ class AgentConfig:
     """C's Adam learning rate."""
     target_update_period: int = 0
     """Updates between target-network copies; 0: no target network (the paper). The `fast`
-    preset's augmented agent: 100 (issue 14, round 18)."""
+    preset's augmented agent: 100 (docs/research/v-fit-for-dynamics.md, round 18)."""
     double_dqn: bool = False
     """Double DQN targets (an option; the paper uses plain DQN)."""
     real_batch: int = 64
@@ -377,11 +378,12 @@ class AgentConfig:
     reward_updates: int = 0
     """Extra updates per time step of M's r- and d-networks alone, on batches of
     ``model_batch`` (0: the paper, N_E for all three). Early, r and d know the few goal and
-    illegal states seen and generalize poorly to the rest (README, issue 14, round 6)."""
+    illegal states seen and generalize poorly to the rest
+    (docs/research/v-fit-for-dynamics.md, round 6)."""
     reward_loss: str = "logcosh"
     """The r-network's loss: logcosh (the paper) or mse. Log-cosh's gradient is at most 1
     per transition, so the rare +50 of a goal state moves r little against the many -1s; the
-    squared error's grows with the error (README, issue 14, round 7)."""
+    squared error's grows with the error (docs/research/v-fit-for-dynamics.md, round 7)."""
     model_batch: int = 512
     """Real transitions per M update."""
     model_lr: float = 1e-3
@@ -392,7 +394,7 @@ class AgentConfig:
     """The dtype of C's and M's matrix products during training: float32 (the paper), or
     bfloat16 (mixed precision: weights, gradients, Adam's state, losses and the MDN's
     log-likelihood stay float32; only each layer's product rounds its operands to bfloat16, as
-    a CPU with AMX or avx512_bf16 and a GPU compute it fastest; README, issue 18). Evaluation,
+    a CPU with AMX or avx512_bf16 and a GPU compute it fastest; docs/benchmarks.md). Evaluation,
     planning and the checkpoints are float32 either way. An agent's numbers match its run in a
     population bitwise with float32 only."""
     model_ensemble: int = 1

@@ -36,7 +36,7 @@ this step's included (linear interpolation between order statistics, ``torch.qua
   An MDN that has seen (s, a) predicts it; the wrong imagined transitions are mostly where C's
   greedy choice in imagination takes an action the agent never took from a state like z, and
   the members of an ensemble trained on the same data can agree on a wrong extrapolation
-  there. Measured on the fast preset's agents (``scripts/uncertainty_check.py``, README), u
+  there. Measured on the fast preset's agents (docs/research/model-trust.md), u
   detects wrong imagined states better than the members' disagreement, and it needs no
   ensemble.
 
@@ -56,10 +56,10 @@ least ``imagination_trust_floor`` of its members' one-step predictions *identify
 the member's mode for (mu_t, a_t) lies nearer the observed mu_{t+1} than its mode for any
 other action from mu_t (a tie of n actions counts 1 / n). The test needs no unit: one image of a
 macrostate may lie farther from that macrostate's mean latent than V's posterior sigma by an
-order of magnitude (V encodes which fragment it shows, README issue 14, round 3), so "within a
-few sigmas of the observed next latent" can fail for an M that names the right macrostate
-every time; an M that does not yet tell the actions' consequences apart identifies about
-1 / actions of them.
+order of magnitude (V encodes which fragment it shows; docs/research/v-fit-for-dynamics.md,
+round 3), so "within a few sigmas of the observed next latent" can fail for an M that names
+the right macrostate every time; an M that does not yet tell the actions' consequences
+apart identifies about 1 / actions of them.
 """
 
 from __future__ import annotations

@@ -118,7 +118,7 @@ def agent_dropout(
     # product instead of two (forward and backward). Each agent's uniform draws go straight into
     # its rows, and the comparison and the scale are then one pass over all agents (lt_ on a
     # float tensor leaves 1.0 or 0.0): the same numbers as a comparison per agent, and the
-    # work around the draws halved (README, issue 18). Agents that draw nothing keep every unit.
+    # work around the draws halved (docs/benchmarks.md). Agents that draw nothing keep every unit.
     mask = torch.empty_like(x)
     idle = []
     for i, generator in enumerate(generators):
@@ -230,7 +230,7 @@ class PopulationAdam:
         The arithmetic is torch's fused Adam kernel on each chosen slice, exactly what
         ``self.optimizer.step()`` runs; the slices and their state are gathered here and handed
         to the kernel directly, which skips the optimizer's per-step bookkeeping over every
-        slice of every agent (about a tenth of a `fast` step; README, issue 18). The state
+        slice of every agent (about a tenth of a `fast` step; docs/benchmarks.md). The state
         lives in ``self.optimizer.state`` as the optimizer keeps it (checkpoints read it)."""
         grads = [None if p.grad is None else p.grad.unbind(0) for p in self.params]
         slices, slice_grads, avgs, squares, steps = [], [], [], [], []

@@ -255,9 +255,9 @@ class WorldModel(nn.Module):
         """M's point prediction of the next state, what the accuracy, generalization and
         planning tests read: the MDN's most likely next state (:meth:`MDN.most_likely`); with
         an ensemble, the mean of the members' most likely next states, (1 / K) sum_k mode_k
-        (the ensemble's prediction, as PETS and MBPO average their members; README, issue 15:
-        it names the right macrostate more often than any one member, most of all from
-        states M never trained on)."""
+        (the ensemble's prediction, as PETS and MBPO average their members;
+        docs/research/model-trust.md: it names the right macrostate more often than any one
+        member, most of all from states M never trained on)."""
         if not self.more_mdns:
             return self.mdn.most_likely(z, action)
         return torch.stack([mdn.most_likely(z, action) for mdn in self.members]).mean(0)

@@ -41,8 +41,8 @@ SB3_ZOO: dict[str, dict[str, Any]] = {
     },
 }  # fmt: skip
 """RL Zoo's tuned DQN settings (rl-baselines3-zoo, hyperparams/dqn.yml) for the environments
-compared in the README; the Zoo tunes CartPole-v1 for 5e4 steps, and the exploration schedule
-here keeps that horizon (``SB3_ZOO_STEPS``) whatever the budgets."""
+compared in docs/any-environment.md; the Zoo tunes CartPole-v1 for 5e4 steps, and the
+exploration schedule here keeps that horizon (``SB3_ZOO_STEPS``) whatever the budgets."""
 SB3_ZOO_STEPS = {"CartPole-v1": 50_000}
 
 

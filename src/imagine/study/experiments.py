@@ -1,10 +1,10 @@
-"""The study of the paper's section V (DESIGN.md section 3) as independent jobs.
+"""The study of the paper's section V (docs/design.md section 3) as independent jobs.
 
 A :class:`Job` is one (task, method, seed) run of Algorithm 1 in its own folder. It trains to
 the first budget, evaluates the greedy policy (1000 test episodes, batched) and M's accuracy,
 writes ``evaluation-NNNNN.json``, and goes on to the next budget from its checkpoint:
 exploration and the memories do not depend on the budget, so one run per seed evaluated at
-each budget stands for one run per budget (DESIGN.md section 3). A job whose evaluation files
+each budget stands for one run per budget (docs/design.md section 3). A job whose evaluation files
 all exist is finished and is never run again; an unfinished one resumes from its last
 checkpoint.
 

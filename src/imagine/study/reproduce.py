@@ -1,4 +1,4 @@
-"""`imagine reproduce`: the paper's experimental section as one command (DESIGN.md section 3).
+"""`imagine reproduce`: the paper's experimental section as one command (docs/design.md section 3).
 
 Into ``OUT``: ``vae/`` (V, trained once unless a V run is given), ``runs/<task>-<method>-<seed>/``
 (every agent, evaluated at every budget), ``tables/`` (Tables I and II, Markdown and CSV),
@@ -28,7 +28,7 @@ from imagine.config import (
     check_preset,
     for_method,
 )
-from imagine.errors import ConfigError
+from imagine.errors import ConfigError, Interrupted
 from imagine.study.experiments import (
     EVAL_SEED,
     Job,
@@ -339,7 +339,14 @@ def _run_study(
             if config.backend == "local"
             else RayRunner(config.workers, config.address, str(out / "ray"), config.device)
         )
-        runner.run(todo, on_start or (lambda job: None), done)
+        try:
+            runner.run(todo, on_start or (lambda job: None), done)
+        except Interrupted:  # Ctrl-C: the report of what has finished, then stop
+            if load_evaluations(jobs):
+                report = write_report(config, out, jobs, failures)
+                log(f"stopped: {report} reports the runs finished so far; run the same command "
+                    "again to resume")  # fmt: skip
+            raise
     agent = agent_preset(config.preset, **config.overrides)
     run_peers(config.baselines, out, config.tasks, config.seeds, config.budgets,
               agent.eval_episodes, EVAL_SEED, agent.hand_switch_prob, log)  # fmt: skip

@@ -1,4 +1,4 @@
-"""GesturePuzzle: the human-robot interaction task of the paper (DESIGN.md section 1).
+"""GesturePuzzle: the human-robot interaction task of the paper (docs/design.md section 1).
 
 Registered with Gymnasium as ``imagine/GesturePuzzle-v0``; the task is a keyword::
 

@@ -1,4 +1,4 @@
-"""GesturePuzzle as a Gymnasium environment (DESIGN.md section 1; paper section V-A).
+"""GesturePuzzle as a Gymnasium environment (docs/design.md section 1; paper section V-A).
 
 The agent sees only images: a uint8 (64, 64, 3) observation whose channels are the three strips
 of the scene, one cube each. The macrostate ``(d0, d1, d2, h)`` goes in ``info["macrostate"]``

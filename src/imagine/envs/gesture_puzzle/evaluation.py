@@ -1,5 +1,5 @@
 """Judging an agent: greedy test episodes in the vectorized environment, and M's accuracy over
-all 192 x 6 true transitions (DESIGN.md section 3)."""
+all 192 x 6 true transitions (docs/design.md section 3)."""
 
 from __future__ import annotations
 
@@ -117,7 +117,7 @@ def model_accuracy(
     model: WorldModel, encoder, task: str, hand_switch_prob: float = 0.0
 ) -> dict[str, float]:
     """M's accuracy from each macrostate's reference latent, read back by the encoder's
-    classifier (DESIGN.md section 3):
+    classifier (docs/design.md section 3):
 
     - ``transition``: over all 192 x 6 true transitions, how often M's most likely next state
       shows the right macrostate. Terminal states never start a real transition, so 828

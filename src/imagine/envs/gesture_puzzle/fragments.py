@@ -1,4 +1,4 @@
-"""Pools of image fragments, one pool per microstate (DESIGN.md section 1; paper section V-A).
+"""Pools of image fragments, one pool per microstate (docs/design.md section 1; paper section V-A).
 
 A :class:`FragmentPool` holds grayscale fragments for every cube-and-arrow microstate
 ``(cube i, direction d)`` and every hand microstate (the pointed cube ``h``). It comes from the

@@ -1,4 +1,4 @@
-"""Telling which macrostate a latent shows (DESIGN.md section 3, model generalization).
+"""Telling which macrostate a latent shows (docs/design.md section 3, model generalization).
 
 A small probe reads V's latent: given the encoded means of labelled images, it learns each
 cube's arrow direction and the pointed cube, one softmax head per factor over a shared hidden

@@ -1,4 +1,4 @@
-"""The built-in procedural renderer of image fragments (DESIGN.md section 1).
+"""The built-in procedural renderer of image fragments (docs/design.md section 1).
 
 The paper photographed, with the robot's camera, 16 fragments for every (cube, arrow direction)
 microstate and 50 for every hand microstate (which cube is pointed at), then composed one random

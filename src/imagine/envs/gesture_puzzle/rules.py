@@ -1,4 +1,4 @@
-"""The GesturePuzzle state machine (DESIGN.md section 1; paper section V-A).
+"""The GesturePuzzle state machine (docs/design.md section 1; paper section V-A).
 
 A macrostate is ``(d0, d1, d2, h)``: ``d_i`` in {UP=0, RIGHT=1, DOWN=2, LEFT=3} is the arrow on
 cube i (cubes left to right, the robot at the top of the image, the human at the bottom, so DOWN
