@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/env_speed.py
 	$(BIN)/python benchmarks/vae_speed.py
 	$(BIN)/python benchmarks/population_speed.py
+	$(BIN)/python benchmarks/step_cost.py
 
 clean:
 	rm -rf $(VENV) results results-full .pytest_cache .ruff_cache
