@@ -113,3 +113,14 @@ def test_imagine_study_runs_files_and_records_where_each_result_came_from(tmp_pa
     wrong = subprocess.run([IMAGINE, "study", str(tmp_path / "tiny.yaml"), "--out", str(out)],
                            capture_output=True, text=True, check=False)  # fmt: skip
     assert wrong.returncode != 0 and "--vae RUN or --oracle" in wrong.stderr
+
+
+def test_every_experiment_the_docs_cite_is_a_file():
+    cited = set()
+    for page in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")]:
+        text = page.read_text()
+        cited |= set(re.findall(r"experiments/([a-z0-9-]+)\.yaml", text))
+        for group in re.findall(r"experiments/\{([a-z0-9,-]+)\}\.yaml", text):
+            cited |= set(group.split(","))
+    missing = sorted(n for n in cited if not (ROOT / "experiments" / f"{n}.yaml").is_file())
+    assert cited and not missing, missing
