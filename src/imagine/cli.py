@@ -436,6 +436,11 @@ def train_agent(
         "init_from": ("--init-from", None if init_from is None else str(init_from)),
     }
     values = with_options(overrides, given)
+    if values.get("env", ENV_ID) != ENV_ID and "steps" not in values and "episodes" not in values:
+        raise ImagineError(
+            f"--env {values['env']} needs a budget: give --steps N, real time steps "
+            "(e.g. --steps 20000), or --episodes N"
+        )
     if "steps" in values and "episodes" not in values:
         values["episodes"] = UNBOUNDED_EPISODES
     values = with_encoder_of_env(values)
