@@ -119,3 +119,27 @@ def test_user_errors_are_one_line_and_exit_2(tmp_path, args, message):
 def test_unknown_task_is_rejected():
     done = run("env", "show", "--task", "easy")
     assert done.returncode == 2 and "easy" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_train_progress_in_a_log_names_its_unit_and_the_recent_outcome(tmp_path):
+    """Off a terminal (a log file) the training bar is a plain line every 5%: done/total in
+    episodes (or steps), the recent return and success, the elapsed time and the ETA."""
+    import re
+
+    from typer.testing import CliRunner
+
+    from imagine.cli import app
+
+    args = ["train", str(tmp_path / "run"), "--preset", "smoke", "--oracle", "--episodes", "20",
+            "--set", "imagination_start=10", "--method", "baseline"]  # fmt: skip
+    done = CliRunner().invoke(app, args)
+    assert done.exit_code == 0, done.output
+    pattern = (r"baseline original seed 0: (\d+)/20 episodes \(\d+%\), return -?\d+\.\d\d, "
+               r"success \d+% \(last 20 episodes\), \d+:\d\d elapsed, ETA")  # fmt: skip
+    counts = [int(m.group(1)) for m in re.finditer(pattern, done.output)]
+    assert counts == sorted(counts) and counts[-1] == 20 and 3 <= len(counts) <= 21, done.output
+    by_steps = ["train", str(tmp_path / "steps"), "--preset", "smoke", "--oracle", "--steps", "30",
+                "--method", "baseline"]  # fmt: skip
+    steps = CliRunner().invoke(app, by_steps)
+    assert steps.exit_code == 0, steps.output
+    assert re.search(r": 30/30 steps \(100%\)", steps.output), steps.output

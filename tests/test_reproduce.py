@@ -47,6 +47,9 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
                  "figures/generalization_hard.png"]:  # fmt: skip
         assert (out / name).is_file(), name
     assert len(list(out.glob("runs/*/evaluation-*.json"))) == 2 * 2 * 2 * 2
+    progress = re.findall(r"study: (\d+)/320 episodes \(\d+%\).*, \d+:\d\d elapsed, ETA",
+                          done.stderr)  # fmt: skip
+    assert progress and progress[-1] == "320", done.stderr  # a log file's lines, in episodes
     table = (out / "tables" / "table_original.md").read_text().splitlines()
     assert table[0].startswith("| Episodes | Base DQN | Augmented | % increase")
     assert [line.split("|")[1].strip() for line in table[2:]] == ["20", "40", "random agent"]
