@@ -291,6 +291,45 @@ def test_an_agent_acts_on_camera_images(tmp_path):
         agent.act(obs)
 
 
+def test_a_saved_agent_carries_v_and_loads_after_v_is_moved_or_deleted(tmp_path):
+    """Agent.save writes V (safetensors and JSON, its classifier too) beside C and M: the
+    saved folder loads and acts the same after V's run folder is moved and then deleted, and
+    after the saved folder itself is moved; nothing in it is a pickle."""
+    import shutil
+
+    from imagine.config import vision_preset
+    from imagine.learning.agent import Agent
+    from imagine.models.vision_training import train_vae
+
+    train_vae(vision_preset("smoke"), tmp_path / "v")
+    config = agent_preset("smoke", vae_run=str(tmp_path / "v"), method="augmented", episodes=3,
+                          imagination_start=2)  # fmt: skip
+    train(config, tmp_path / "run", threads=1)
+    agent = Agent.load(tmp_path / "run")
+    envs = GesturePuzzleVectorEnv(8, task="original")
+    obs, _ = envs.reset(seed=0)
+    actions = agent.act(obs)
+    mu, _ = agent.encoder.encode(obs, None)
+    saved = agent.save(tmp_path / "saved")
+    assert {p.name for p in (saved / "vae").iterdir()} == {
+        "vae.safetensors", "vae.json", "classifier.safetensors"}  # fmt: skip
+    shutil.move(tmp_path / "v", tmp_path / "v-moved")
+    again = Agent.load(saved)
+    assert np.array_equal(again.act(obs), actions)
+    assert torch.equal(again.encoder.encode(obs, None)[0], mu)
+    assert torch.equal(again.encoder.state_latents(), agent.encoder.state_latents())
+    shutil.rmtree(tmp_path / "v-moved")
+    shutil.move(saved, tmp_path / "elsewhere")
+    moved = Agent.load(tmp_path / "elsewhere")
+    assert np.array_equal(moved.act(obs), actions) and moved.episode == 3
+    assert Path(moved.config.vae_run) == tmp_path / "elsewhere" / "vae"
+    resaved = moved.save(tmp_path / "resaved")  # a loaded saved agent saves again
+    assert np.array_equal(Agent.load(resaved).act(obs), actions)
+    assert all(p.suffix in (".json", ".safetensors") for p in resaved.rglob("*") if p.is_file())
+    with pytest.raises(CheckpointError, match="does not exist"):  # a training run refers to V
+        Agent.load(tmp_path / "run")
+
+
 def test_the_fast_augmented_agent_trusts_an_ensemble_and_the_baseline_has_none():
     """The fast preset's augmented M is an ensemble of 5 behind the mask gate (issue 15, round
     19); its baseline, imagination's control and the paper preset have one M and no gate."""

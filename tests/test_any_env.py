@@ -198,6 +198,16 @@ def test_image_env_through_v_end_to_end(tmp_path):
     spec = make_spec(toy_config(env, "vae"))
     random = run_episodes(spec, random_policy(spec.n_actions, 0), 50, seed=1_000_000)
     assert result["success"] >= 0.9 and result["mean_return"] > random["mean_return"] + 1.0
+    import shutil
+
+    agent = load_agent(run)  # a saved agent carries its V: it acts with V's run deleted
+    import gymnasium
+
+    frames = np.stack([gymnasium.make(env).reset(seed=s)[0] for s in range(4)])
+    saved = agent.save(tmp_path / "saved")
+    shutil.rmtree(v)
+    assert not (saved / "vae" / "classifier.safetensors").exists()
+    assert np.array_equal(Agent.load(saved).act(frames), agent.act(frames))
     wrong = runner.invoke(app, ["train", str(tmp_path / "b"), "--env", LINE, "--vae", str(v),
                                 "--set", "encoder=vae", "--steps", "10"])  # fmt: skip
     assert wrong.exit_code != 0 and "vector observations" in str(wrong.exception)

@@ -18,7 +18,7 @@ I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with im
 :class:`Agent` is a trained agent as evaluation, planning and the generalization test use it:
 its config, encoder, C and M. ``Agent.load(RUN)`` reads one; ``agent.act(observations)`` gives
 C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step;
-``agent.save(FOLDER)`` writes it (config, C and M, no memories) where ``Agent.load`` and
+``agent.save(FOLDER)`` writes it (config, C, M and V, no memories) where ``Agent.load`` and
 ``imagine evaluate`` read it::
 
     agent = Agent.load("runs/hard-aug/seed-0")
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from imagine.checkpoint import load_state_dict_strict, read_json
+from imagine.checkpoint import load_state_dict_strict, read_json, save_tensors
 from imagine.config import AgentConfig, from_dict
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
@@ -91,6 +91,10 @@ def image_encoder(config: AgentConfig, device: str | torch.device = "cpu") -> Im
             f"(wrappers {learned[1]}), not of {config.env} (wrappers {list(config.wrappers)})"
         )
     return encoder
+
+
+SAVED_VAE = "vae"
+"""The folder, inside a saved agent's (:meth:`Agent.save`), of the V it sees through."""
 
 
 @dataclasses.dataclass
@@ -168,15 +172,30 @@ class Agent:
         return self._belief
 
     def save(self, folder: str | Path) -> Path:
-        """Write this agent (its config, C, M and the start states of its M_R where it has
-        them) into ``folder``, for :meth:`load` and ``imagine evaluate``; not a run that
-        training resumes (no memories, optimizers or random streams). Returns the folder."""
+        """Write this agent (its config, C, M, the start states of its M_R where it has
+        them, and V where it sees through one) into ``folder``, for :meth:`load` and
+        ``imagine evaluate``; not a run that training resumes (no memories, optimizers or
+        random streams). V goes into ``folder/vae`` (weights as safetensors, config as JSON,
+        and its latent classifier where it has one), so the folder loads wherever V's own
+        run has gone. Returns the folder."""
         tensors = {f"controller.{k}": v for k, v in self.controller.state_dict().items()}
         tensors |= {f"model.{k}": v for k, v in self.model.state_dict().items()}
         if self.memory_starts is not None:
             tensors["real.mu"], tensors["real.action"] = self.memory_starts
         values = {"episode": self.episode, "t": self.t, "config": dataclasses.asdict(self.config)}
-        return save_agent(Path(folder), tensors, values)
+        vision = getattr(self.encoder, "vae", None)
+        if vision is not None:
+            values["vae"] = SAVED_VAE
+        folder = save_agent(Path(folder), tensors, values)
+        if vision is not None:
+            from imagine.models.vision_training import save_vae
+
+            save_vae(folder / SAVED_VAE, vision, self.encoder.vision_config, self.encoder.epoch, {})
+            classifier = getattr(self.encoder, "classifier", None)
+            if classifier is not None:
+                save_tensors(folder / SAVED_VAE / "classifier.safetensors",
+                             classifier.state_dict())  # fmt: skip
+        return folder
 
 
 @torch.no_grad()
@@ -240,6 +259,8 @@ def load_agent(folder: str | Path) -> Agent:
     if config is None:
         raise CheckpointError(f"{folder} holds no agent run (no agent.json)")
     tensors, meta = read_checkpoint(folder, READABLE_FORMATS)
+    if meta.get("vae") == SAVED_VAE:  # a saved agent carries its V
+        config = dataclasses.replace(config, vae_run=str(folder / SAVED_VAE))
     encoder = make_encoder(config)
     n_actions = make_spec(config).n_actions
     controller, model = new_networks(config, encoder.latent_dim, n_actions)

@@ -67,7 +67,7 @@ class ImageEncoder:
     def __init__(self, run, device: str | torch.device = "cpu") -> None:
         from imagine.models.vision_training import load_vae
 
-        self.vae, config, _ = load_vae(run)
+        self.vae, config, self.epoch = load_vae(run)
         self.vae.eval().to(device)
         self.latent_dim = config.latent_dim
         self.vision_config = config

@@ -66,9 +66,10 @@ class VaeEncoder:
     ):
         from imagine.models.vision_training import load_classifier, load_vae
 
-        self.vae, config, _ = load_vae(run)
+        self.vae, config, self.epoch = load_vae(run)
         self.vae.eval().to(device)
         self.latent_dim = config.latent_dim
+        self.vision_config = config
         self.classifier = load_classifier(run, config.latent_dim)
         rng = np.random.default_rng(0)
         states = np.repeat(all_macrostates(), images_per_state, axis=0)
