@@ -143,3 +143,30 @@ def test_train_progress_in_a_log_names_its_unit_and_the_recent_outcome(tmp_path)
     steps = CliRunner().invoke(app, by_steps)
     assert steps.exit_code == 0, steps.output
     assert re.search(r": 30/30 steps \(100%\)", steps.output), steps.output
+
+
+def test_evaluate_uses_the_default_its_help_states_and_prints_intervals_as_brackets(tmp_path):
+    """`imagine evaluate` without --episodes runs the run's eval_episodes (smoke: 200), as its
+    help says; intervals print as [low, high], never low-high (a minus sign reads as a range);
+    an AUROC without both wrong and right imagined states prints as n/a with the reason."""
+    import math
+    import re
+
+    from typer.testing import CliRunner
+
+    from imagine.cli import app, auroc_text
+
+    helped = CliRunner().invoke(app, ["evaluate", "--help"], env={"COLUMNS": "200"})
+    assert "default: the run's eval_episodes, 1000; 200 with the smoke preset" in helped.output
+    run = tmp_path / "run"
+    trained = CliRunner().invoke(app, ["train", str(run), "--preset", "smoke", "--oracle",
+                                       "--method", "baseline", "--episodes", "10"])  # fmt: skip
+    assert trained.exit_code == 0, trained.output
+    done = CliRunner().invoke(app, ["evaluate", str(run)])
+    assert done.exit_code == 0, done.output
+    assert re.search(r"success \d+\.\d% \(95% CI \[\d+\.\d, \d+\.\d\]%\), 200 episodes; mean "
+                     r"return -?\d+\.\d\d \(95% CI \[-?\d+\.\d\d, -?\d+\.\d\d\]\)",
+                     done.output), done.output  # fmt: skip
+    assert auroc_text(0.8123, 0.5) == "AUROC 0.812"
+    assert auroc_text(math.nan, 1.0).startswith("AUROC n/a (every imagined state was right")
+    assert auroc_text(math.nan, 0.0).startswith("AUROC n/a (every imagined state was wrong")

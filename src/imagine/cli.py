@@ -4,6 +4,7 @@ one-line message and exit status 2."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections import deque
@@ -585,7 +586,11 @@ def train_agent(
 def evaluate_agent(
     run: Annotated[Path, typer.Argument(help="An agent run folder.")],
     episodes: Annotated[
-        int | None, typer.Option(help="Greedy test episodes (default 1000).")
+        int | None,
+        typer.Option(
+            help="Greedy test episodes (default: the run's eval_episodes, 1000; 200 with the "
+            "smoke preset)."
+        ),
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the test episodes.")] = 1_000_000,
 ) -> None:
@@ -632,9 +637,9 @@ def evaluate_agent(
         "hand_calibration_all": calibration_all, "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
-    print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes; "
-          "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f})"
-          .format(**result))  # fmt: skip
+    print(f"success {100 * result['success']:.1f}% (95% CI [{low:.1f}, {high:.1f}]%), {n} "
+          "episodes; mean return {mean_return:.2f} (95% CI [{return_ci_low:.2f}, "
+          "{return_ci_high:.2f}])".format(**result))  # fmt: skip
     if "success_observation" in result:
         print(f"C acts on a filtered belief (w = {agent.config.filter_weight}); on V's means "
               f"alone it succeeds {100 * result['success_observation']:.1f}%")  # fmt: skip
@@ -668,13 +673,13 @@ def evaluate_agent(
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip
     if detection is not None:
         print(f"disagreement of M's {agent.config.model_ensemble} members as a detector of wrong "
-              "imagined states: AUROC {disagreement_auroc:.3f}; state right in the most-agreed "
-              "half {state_agreed_half:.1%}, in the rest {state_disagreed_half:.1%}"
-              .format(**imagined))  # fmt: skip
+              f"imagined states: {auroc_text(detection, imagined['state'])}; state right in "
+              "the most-agreed half {state_agreed_half:.1%}, in the rest "
+              "{state_disagreed_half:.1%}".format(**imagined))  # fmt: skip
     if support is not None:
         print(
             f"support (distance to M_R's nearest start with the same action) as a detector of "
-            f"wrong imagined states: AUROC {support:.3f}"
+            f"wrong imagined states: {auroc_text(support, imagined['state'])}"
         )
     if "accepted" in imagined:
         gate = agent.config.imagination_gate
@@ -684,6 +689,20 @@ def evaluate_agent(
               f"{agent.config.imagination_gate_scale}: threshold {{gate_threshold:.3f}}, accepts "
               "{accepted:.1%}; state right in the accepted {state_accepted:.1%}, in the rejected "
               "{state_rejected:.1%}".format(**imagined))  # fmt: skip
+
+
+def auroc_text(value: float, state_right: float) -> str:
+    """``AUROC 0.812``, or ``AUROC n/a`` with the reason where there is none: a detector of
+    wrong imagined states needs both wrong and right ones (``state_right``: their share)."""
+    if not math.isnan(value):
+        return f"AUROC {value:.3f}"
+    if state_right >= 1:
+        why = "every imagined state was right, none wrong to detect"
+    elif state_right <= 0:
+        why = "every imagined state was wrong, none right to tell them from"
+    else:
+        why = "undefined on these transitions"
+    return f"AUROC n/a ({why})"
 
 
 def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
@@ -700,12 +719,12 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     print(f"{run}: {agent.config.method}, {agent.config.env}, after {agent.t} time steps "
           f"({agent.episode} episodes)")  # fmt: skip
     print(
-        "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f}), "
+        "mean return {mean_return:.2f} (95% CI [{return_ci_low:.2f}, {return_ci_high:.2f}]), "
         "mean length {mean_length:.1f}, {episodes} greedy episodes".format(**result)
     )
     if "success" in result:
-        print(f"success {100 * result['success']:.1f}% (95% CI {100 * result['ci_low']:.1f}-"
-              f"{100 * result['ci_high']:.1f}%)")  # fmt: skip
+        print(f"success {100 * result['success']:.1f}% (95% CI [{100 * result['ci_low']:.1f}, "
+              f"{100 * result['ci_high']:.1f}]%)")  # fmt: skip
 
 
 @app.command("compare")
