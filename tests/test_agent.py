@@ -95,9 +95,16 @@ def test_bad_agent_configs():
 def test_a_folder_with_another_run_is_not_overwritten(tmp_path):
     train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline"), tmp_path,
           threads=1)  # fmt: skip
-    with pytest.raises(CheckpointError, match="another config"):
+    with pytest.raises(CheckpointError, match=r"another config \(seed 0 -> 1\)"):
         train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline", seed=1),
               tmp_path, threads=1)  # fmt: skip
+    changed = agent_preset("smoke", encoder="oracle", episodes=30, method="baseline", gamma=0.9,
+                           dropout=0.25)  # fmt: skip
+    base = agent_preset("smoke")
+    named = f"(gamma {base.gamma} -> 0.9, dropout {base.dropout} -> 0.25)"  # field order
+    with pytest.raises(CheckpointError) as error:  # every field that differs, old -> new
+        train(changed, tmp_path, threads=1)
+    assert named in str(error.value) and "episodes" not in str(error.value)
 
 
 def test_wilson_interval():

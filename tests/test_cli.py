@@ -170,3 +170,26 @@ def test_evaluate_uses_the_default_its_help_states_and_prints_intervals_as_brack
     assert auroc_text(0.8123, 0.5) == "AUROC 0.812"
     assert auroc_text(math.nan, 1.0).startswith("AUROC n/a (every imagined state was right")
     assert auroc_text(math.nan, 0.0).startswith("AUROC n/a (every imagined state was wrong")
+
+
+def test_a_finished_run_run_again_says_so_and_trains_nothing(tmp_path):
+    """The same `imagine train` again on a finished run: one line saying it is finished,
+    nothing trained or rewritten; a larger budget trains on."""
+    from typer.testing import CliRunner
+
+    from imagine.cli import app
+    from imagine.learning.agent import load_agent
+
+    run = tmp_path / "run"
+    args = ["train", str(run), "--preset", "smoke", "--oracle", "--method", "baseline"]
+    first = CliRunner().invoke(app, [*args, "--episodes", "10"])
+    assert first.exit_code == 0, first.output
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir() if p.is_file()}
+    again = CliRunner().invoke(app, [*args, "--episodes", "10"])
+    assert again.exit_code == 0, again.output
+    assert f"{run} is finished (10 episodes, " in again.output
+    assert "nothing to train" in again.output and "trained" not in again.output
+    assert {p.name: p.stat().st_mtime_ns for p in run.iterdir() if p.is_file()} == before
+    more = CliRunner().invoke(app, [*args, "--episodes", "12"])
+    assert more.exit_code == 0 and "is finished" not in more.output, more.output
+    assert load_agent(run).episode == 12

@@ -440,12 +440,16 @@ def recent_outcome(recent: list[deque]) -> str:
 
 
 def saved_counts(folder: Path) -> tuple[int, int]:
-    """(episodes, real time steps) of the run checkpointed in ``folder``; (0, 0) if none."""
+    """(episodes, real time steps) of the run checkpointed in ``folder``; (0, 0) if none (or
+    if it holds another thing, such as a saved agent, which training refers to)."""
     from imagine.checkpoint import read_json
+    from imagine.learning.agent_checkpoint import FORMAT
 
     if not (folder / "agent.json").is_file():
         return 0, 0
     meta = read_json(folder / "agent.json", "agent checkpoint metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        return 0, 0
     return int(meta.get("episode", 0)), int(meta.get("t", 0))
 
 
@@ -553,6 +557,16 @@ def train_agent(
         folders = [out / f"seed-{s}" for s in chosen]
     for c, folder in zip(configs, folders, strict=True):
         check_folder(c, folder)  # errors before any progress bar is drawn
+    counts = [saved_counts(folder) for folder in folders]
+    finished = [e >= c.episodes or 0 < c.steps <= t
+                for c, (e, t) in zip(configs, counts, strict=True)]  # fmt: skip
+    for folder, (e, t), done_already in zip(folders, counts, finished, strict=True):
+        if done_already:
+            message = (f"{folder} is finished ({e} episodes, {t} time steps); nothing to train "
+                       "(a larger --episodes or --steps trains on)")  # fmt: skip
+            console.print(message, soft_wrap=True)
+    if all(finished):
+        return
     torch_device = resolve_device(device)
     encoder = make_encoder(config, torch_device)
     start = time.perf_counter()
@@ -560,7 +574,7 @@ def train_agent(
     what = config.task if config.env == ENV_ID else config.env
     by_steps = config.steps > 0 and config.episodes == UNBOUNDED_EPISODES
     budget = config.steps if by_steps else config.episodes
-    done = [min(t, budget) if by_steps else e for e, t in map(saved_counts, folders)]
+    done = [min(t, budget) if by_steps else e for e, t in counts]
     recent: list[deque] = [deque(maxlen=RECENT) for _ in configs]  # (return, success)
     with Bar(f"{config.method} {what} {label}", budget * len(configs),
              "steps" if by_steps else "episodes", sum(done)) as bar:  # fmt: skip
@@ -574,7 +588,7 @@ def train_agent(
                                   encoder=encoder, device=str(torch_device))  # fmt: skip
     seconds = time.perf_counter() - start
     for i, agent in enumerate(result.agents):
-        if agent is not None:
+        if agent is not None and not finished[i]:
             steps = f"{agent.episode} episodes, {agent.t} time steps"
             console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}")
     console.print(f"{seconds:.0f} s")

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from imagine.checkpoint import load_state_dict_strict, read_json, save_tensors
+from imagine.checkpoint import changed_fields, load_state_dict_strict, read_json, save_tensors
 from imagine.config import AgentConfig, from_dict
 from imagine.envs.spec import make_spec
 from imagine.errors import CheckpointError, ConfigError
@@ -246,8 +246,10 @@ def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
     saved = saved_config(folder)
     budget = {"episodes": config.episodes, "steps": config.steps}
     if saved is not None and dataclasses.replace(saved, **budget) != config:
+        differ = changed_fields(vars(saved), vars(config), skip=budget)
         raise CheckpointError(
-            f"{folder} holds a run with another config; use a new folder or the same settings"
+            f"{folder} holds a run with another config ({differ}); use a new folder or the "
+            "same settings"
         )
     return saved
 
