@@ -135,9 +135,16 @@ def test_train_progress_in_a_log_names_its_unit_and_the_recent_outcome(tmp_path)
     done = CliRunner().invoke(app, args)
     assert done.exit_code == 0, done.output
     pattern = (r"baseline original seed 0: (\d+)/20 episodes \(\d+%\), return -?\d+\.\d\d, "
-               r"success \d+% \(last 20 episodes\), \d+:\d\d elapsed, ETA")  # fmt: skip
-    counts = [int(m.group(1)) for m in re.finditer(pattern, done.output)]
+               r"success \d+% \(last (\d+) episodes\), \d+:\d\d elapsed, ETA")  # fmt: skip
+    found = [(int(m.group(1)), int(m.group(2))) for m in re.finditer(pattern, done.output)]
+    counts = [count for count, _ in found]
     assert counts == sorted(counts) and counts[-1] == 20 and 3 <= len(counts) <= 21, done.output
+    assert all(last == min(count, 20) for count, last in found)  # the episodes averaged
+    lines = done.output.splitlines()  # the last lines whole, each labelled
+    run = tmp_path / "run"
+    assert f"trained {run}: 20 episodes, " in lines[-2] and lines[-2].endswith(
+        f"; next: imagine evaluate {run}")  # fmt: skip
+    assert re.fullmatch(r"trained in \d+ s", lines[-1]), lines[-1]
     by_steps = ["train", str(tmp_path / "steps"), "--preset", "smoke", "--oracle", "--steps", "30",
                 "--method", "baseline"]  # fmt: skip
     steps = CliRunner().invoke(app, by_steps)

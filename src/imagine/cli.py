@@ -306,7 +306,8 @@ def vae_train(
 
         train_vae(config, out, on_epoch=on_epoch, device=device)
     console.print(
-        f"V trained in {out} ({time.perf_counter() - start:.0f} s); next: imagine vae report {out}"
+        f"V trained in {out} ({time.perf_counter() - start:.0f} s); next: imagine vae report {out}",
+        soft_wrap=True,
     )
 
 
@@ -436,7 +437,7 @@ def recent_outcome(recent: list[deque]) -> str:
     successes = [s for _, s in pairs if s is not None]
     if successes:
         text += f", success {100 * sum(successes) / len(successes):.0f}%"
-    return text + f" (last {RECENT} episodes)"
+    return text + f" (last {max(len(episodes) for episodes in recent)} episodes)"
 
 
 def saved_counts(folder: Path) -> tuple[int, int]:
@@ -590,8 +591,9 @@ def train_agent(
     for i, agent in enumerate(result.agents):
         if agent is not None and not finished[i]:
             steps = f"{agent.episode} episodes, {agent.t} time steps"
-            console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}")
-    console.print(f"{seconds:.0f} s")
+            console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}",
+                          soft_wrap=True)  # fmt: skip
+    console.print(f"trained in {seconds:.0f} s", soft_wrap=True)
     if result.failures:
         raise NumericalError("; ".join(result.failures.values()))
 
@@ -1000,7 +1002,8 @@ def reproduce_study(
             console.print(message)
 
         report, failures = reproduce(config, out, log, on_start, on_done)
-    console.print(f"study done in {time.perf_counter() - start:.0f} s; report: {report}")
+    console.print(f"study done in {time.perf_counter() - start:.0f} s; report: {report}",
+                  soft_wrap=True)  # fmt: skip
     if failures:
         console.print(f"{len(failures)} run(s) failed; see {report}")
         raise typer.Exit(1)
