@@ -329,6 +329,10 @@ def test_a_saved_agent_carries_v_and_loads_after_v_is_moved_or_deleted(tmp_path)
     shutil.move(saved, tmp_path / "elsewhere")
     moved = Agent.load(tmp_path / "elsewhere")
     assert np.array_equal(moved.act(obs), actions) and moved.episode == 3
+    expected = r"uint8 images of shape \(64, 64, 3\) \(one\) or \(N, 64, 64, 3\) \(a batch\)"
+    with pytest.raises(ValueError, match=expected + r"; got float32 of shape \(64, 64, 3\)$"):
+        moved.act(obs[0].astype(np.float32) / 255)  # the shape given, not a batched one
+    assert len(repr(moved)) < 120 and "memory" not in repr(moved)
     assert Path(moved.config.vae_run) == tmp_path / "elsewhere" / "vae"
     resaved = moved.save(tmp_path / "resaved")  # a loaded saved agent saves again
     assert np.array_equal(Agent.load(resaved).act(obs), actions)

@@ -35,10 +35,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from imagine import ENV_ID
 from imagine.checkpoint import changed_fields, load_state_dict_strict, read_json, save_tensors
 from imagine.config import AgentConfig, from_dict
 from imagine.envs.spec import make_spec
-from imagine.errors import CheckpointError, ConfigError
+from imagine.errors import CheckpointError, ConfigError, ObservationError
 from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint, save_agent
 from imagine.learning.belief import BeliefTracker
 from imagine.learning.extras import extras_of
@@ -97,7 +98,7 @@ SAVED_VAE = "vae"
 """The folder, inside a saved agent's (:meth:`Agent.save`), of the V it sees through."""
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(repr=False)
 class Agent:
     """A trained agent: C and M (single-agent modules, eval mode) after ``episode`` episodes
     and ``t`` real time steps."""
@@ -112,6 +113,14 @@ class Agent:
     """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
     ``support`` uncertainty measures against, :mod:`imagine.learning.gate`); None if not saved."""
     _belief: BeliefTracker | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """One short line: environment (and task), method, encoder, episodes and steps; never
+        the networks or the memory."""
+        c = self.config
+        env = f"{c.env}, task={c.task}" if c.env == ENV_ID else c.env
+        return (f"Agent(env={env}, method={c.method}, encoder={c.encoder}, "
+                f"episodes={self.episode}, steps={self.t})")  # fmt: skip
 
     @classmethod
     def load(cls, folder: str | Path) -> Agent:
@@ -138,12 +147,18 @@ class Agent:
         row of the previous call (the same N). True everywhere (the default) acts on V's means,
         as the first step of an episode does."""
         images = np.asarray(observations)
-        one = images.ndim == getattr(self.encoder, "observation_ndim", 3)
+        one = check_observations(self.encoder, images)
         if one:
             images = images[None]
             macrostates = None if macrostates is None else np.asarray(macrostates)[None]
         if self.config.encoder == "oracle" and macrostates is None:
             raise ConfigError("an oracle-encoder agent acts on macrostates: pass macrostates")
+        if macrostates is not None and np.shape(macrostates) != (len(images), 4):
+            given = np.shape(macrostates[0]) if one else np.shape(macrostates)
+            raise ObservationError(
+                f"macrostates are (4,) for one observation or (N, 4) for N; got {given} "
+                f"beside {'one observation' if one else f'{len(images)} observations'}"
+            )
         belief, rows = self._episodes(len(images), episode_start), np.arange(len(images))
         actions = greedy_actions(self.controller, self.encoder, images, macrostates, belief, rows)
         if epsilon > 0:
@@ -196,6 +211,42 @@ class Agent:
                 save_tensors(folder / SAVED_VAE / "classifier.safetensors",
                              classifier.state_dict())  # fmt: skip
         return folder
+
+
+def check_observations(encoder, observations: np.ndarray) -> bool:
+    """Whether ``observations`` are one observation (True) or a batch of them (False), as the
+    encoder's ``observation_shape`` and ``observation_dtype`` call for; an
+    :class:`ObservationError` naming the expected and the given shape otherwise. An encoder
+    without an ``observation_shape`` (the oracle, which reads macrostates) takes any."""
+    x = observations
+    shape = getattr(encoder, "observation_shape", None)
+    if shape is None:
+        return x.ndim == getattr(encoder, "observation_ndim", 3)
+
+    def fits(given: tuple[int, ...]) -> bool:
+        return len(given) == len(shape) and all(
+            isinstance(e, str) or e == g for e, g in zip(shape, given, strict=True)
+        )
+
+    dtype = getattr(encoder, "observation_dtype", None)
+    kind_ok = (
+        dtype is None
+        or (dtype == "integer" and x.dtype.kind in "iu")
+        or (dtype != "integer" and x.dtype == dtype)
+    )
+    if isinstance(encoder, ImageEncoder) and x.ndim >= 1 and x.shape[-1] not in (1, 3, 4):
+        kind_ok = False  # channels: gray, RGB or RGBA
+    one = x.ndim == len(shape) and fits(x.shape)
+    batch = x.ndim == len(shape) + 1 and fits(x.shape[1:])
+    if kind_ok and (one or batch):
+        return one
+    what = {"uint8": "uint8 images", "integer": "integer observations"}.get(dtype, "observations")
+    one_shape = "(" + ", ".join(map(str, shape)) + ("," if len(shape) == 1 else "") + ")"
+    batch_shape = "(" + ", ".join(["N", *map(str, shape)]) + ")"
+    raise ObservationError(
+        f"this agent acts on {what} of shape {one_shape} (one) or {batch_shape} (a batch); "
+        f"got {x.dtype} of shape {tuple(x.shape)}"
+    )
 
 
 @torch.no_grad()

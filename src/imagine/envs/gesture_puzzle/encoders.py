@@ -57,6 +57,9 @@ class OracleEncoder:
 class VaeEncoder:
     """V's posterior; macrostates are read back with the run's latent classifier."""
 
+    observation_shape = (64, 64, 3)
+    observation_dtype = "uint8"
+
     def __init__(
         self,
         run: str | Path,
