@@ -81,8 +81,12 @@ def test_stopped_and_resumed_continues_where_it_was(tmp_path):
 
 
 def test_bad_agent_configs():
-    with pytest.raises(ConfigError, match="beyond the episode budget"):
+    with pytest.raises(ConfigError, match="beyond the episode budget") as error:
         check_imagines(agent_preset("fast", episodes=500, imagination_start=1000))
+    assert "(--episodes 2000 works)" in str(error.value)  # which budget would work
+    assert "(--set imagination_start=250)" in str(error.value)  # or which I_start
+    for fixed in (dict(episodes=2000), dict(episodes=500, imagination_start=250)):  # they do
+        check_imagines(agent_preset("fast", **{"imagination_start": 1000, **fixed}))
     check_imagines(agent_preset("fast", episodes=500, imagination_start=1000, method="baseline"))
     with pytest.raises(ConfigError, match=r"agent\.method must be one of"):
         agent_preset("fast", method="dyna")

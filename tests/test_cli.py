@@ -102,6 +102,10 @@ def test_export_fragments_round_trips(tmp_path):
         (["train", "r", "--oracle", "--set", "dropuot=0.1"], "did you mean 'dropout'"),
         (["train", "r", "--oracle", "--config", "missing.yaml"], "does not exist"),
         (["train", "r", "--env", "CartPole-v1"], "needs a budget: give --steps N"),
+        (
+            ["train", "r", "--preset", "smoke", "--oracle", "--episodes", "20"],
+            "(--episodes 200 works) or start imagining earlier (--set imagination_start=10)",
+        ),
         (["vae", "train", "--out", "v", "--set", "beta=-1"], "vision.beta must be >= 0"),
         (["vae", "train", "--out", "v", "--set", "betta=8"], "did you mean 'beta'"),
     ],

@@ -135,7 +135,8 @@ class StudyConfig:
             agent_preset(self.preset, episodes=budget, encoder="oracle", method="baseline",
                          **for_method(self.overrides, "baseline"))  # fmt: skip
             agent = agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
-        check_imagines(agent)  # the runs are evaluated early, but must imagine by the last budget
+        # the runs are evaluated early, but must imagine by the last budget
+        check_imagines(agent, "--budgets")
 
 
 STUDY_KEEP = ("backend", "workers", "address", "baselines")
