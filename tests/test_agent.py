@@ -81,8 +81,12 @@ def test_stopped_and_resumed_continues_where_it_was(tmp_path):
 
 
 def test_bad_agent_configs():
-    with pytest.raises(ConfigError, match="beyond the episode budget"):
+    with pytest.raises(ConfigError, match="beyond the episode budget") as error:
         check_imagines(agent_preset("fast", episodes=500, imagination_start=1000))
+    assert "(--episodes 2000 works)" in str(error.value)  # which budget would work
+    assert "(--set imagination_start=250)" in str(error.value)  # or which I_start
+    for fixed in (dict(episodes=2000), dict(episodes=500, imagination_start=250)):  # they do
+        check_imagines(agent_preset("fast", **{"imagination_start": 1000, **fixed}))
     check_imagines(agent_preset("fast", episodes=500, imagination_start=1000, method="baseline"))
     with pytest.raises(ConfigError, match=r"agent\.method must be one of"):
         agent_preset("fast", method="dyna")
@@ -95,9 +99,16 @@ def test_bad_agent_configs():
 def test_a_folder_with_another_run_is_not_overwritten(tmp_path):
     train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline"), tmp_path,
           threads=1)  # fmt: skip
-    with pytest.raises(CheckpointError, match="another config"):
+    with pytest.raises(CheckpointError, match=r"another config \(seed 0 -> 1\)"):
         train(agent_preset("smoke", encoder="oracle", episodes=20, method="baseline", seed=1),
               tmp_path, threads=1)  # fmt: skip
+    changed = agent_preset("smoke", encoder="oracle", episodes=30, method="baseline", gamma=0.9,
+                           dropout=0.25)  # fmt: skip
+    base = agent_preset("smoke")
+    named = f"(gamma {base.gamma} -> 0.9, dropout {base.dropout} -> 0.25)"  # field order
+    with pytest.raises(CheckpointError) as error:  # every field that differs, old -> new
+        train(changed, tmp_path, threads=1)
+    assert named in str(error.value) and "episodes" not in str(error.value)
 
 
 def test_wilson_interval():
@@ -289,6 +300,49 @@ def test_an_agent_acts_on_camera_images(tmp_path):
     assert set(explored.tolist()) == set(range(6))
     with pytest.raises(ConfigError, match="pass macrostates"):
         agent.act(obs)
+
+
+def test_a_saved_agent_carries_v_and_loads_after_v_is_moved_or_deleted(tmp_path):
+    """Agent.save writes V (safetensors and JSON, its classifier too) beside C and M: the
+    saved folder loads and acts the same after V's run folder is moved and then deleted, and
+    after the saved folder itself is moved; nothing in it is a pickle."""
+    import shutil
+
+    from imagine.config import vision_preset
+    from imagine.learning.agent import Agent
+    from imagine.models.vision_training import train_vae
+
+    train_vae(vision_preset("smoke"), tmp_path / "v")
+    config = agent_preset("smoke", vae_run=str(tmp_path / "v"), method="augmented", episodes=3,
+                          imagination_start=2)  # fmt: skip
+    train(config, tmp_path / "run", threads=1)
+    agent = Agent.load(tmp_path / "run")
+    envs = GesturePuzzleVectorEnv(8, task="original")
+    obs, _ = envs.reset(seed=0)
+    actions = agent.act(obs)
+    mu, _ = agent.encoder.encode(obs, None)
+    saved = agent.save(tmp_path / "saved")
+    assert {p.name for p in (saved / "vae").iterdir()} == {
+        "vae.safetensors", "vae.json", "classifier.safetensors"}  # fmt: skip
+    shutil.move(tmp_path / "v", tmp_path / "v-moved")
+    again = Agent.load(saved)
+    assert np.array_equal(again.act(obs), actions)
+    assert torch.equal(again.encoder.encode(obs, None)[0], mu)
+    assert torch.equal(again.encoder.state_latents(), agent.encoder.state_latents())
+    shutil.rmtree(tmp_path / "v-moved")
+    shutil.move(saved, tmp_path / "elsewhere")
+    moved = Agent.load(tmp_path / "elsewhere")
+    assert np.array_equal(moved.act(obs), actions) and moved.episode == 3
+    expected = r"uint8 images of shape \(64, 64, 3\) \(one\) or \(N, 64, 64, 3\) \(a batch\)"
+    with pytest.raises(ValueError, match=expected + r"; got float32 of shape \(64, 64, 3\)$"):
+        moved.act(obs[0].astype(np.float32) / 255)  # the shape given, not a batched one
+    assert len(repr(moved)) < 120 and "memory" not in repr(moved)
+    assert Path(moved.config.vae_run) == tmp_path / "elsewhere" / "vae"
+    resaved = moved.save(tmp_path / "resaved")  # a loaded saved agent saves again
+    assert np.array_equal(Agent.load(resaved).act(obs), actions)
+    assert all(p.suffix in (".json", ".safetensors") for p in resaved.rglob("*") if p.is_file())
+    with pytest.raises(CheckpointError, match="does not exist"):  # a training run refers to V
+        Agent.load(tmp_path / "run")
 
 
 def test_the_fast_augmented_agent_trusts_an_ensemble_and_the_baseline_has_none():

@@ -70,6 +70,32 @@ def test_toy_env_agent_beats_random(tmp_path, env, encoder, method):
     assert (tmp_path / "run" / "agent.json").read_bytes() == before
 
 
+def test_act_on_a_wrong_observation_names_the_expected_and_given_shapes(tmp_path):
+    """Agent.act on an observation of another shape is a ValueError naming the shape the
+    agent acts on and the one given (not a batched one, nor a raw RuntimeError, nor a silent
+    reshape of an 8-vector into two 4-vectors); print(agent) is one short line."""
+    from imagine.errors import ObservationError
+
+    train_population([toy_config(steps=30)], [tmp_path / "run"], threads=1)
+    agent = load_agent(tmp_path / "run")  # observations (2,)
+    assert agent.act(np.zeros(2, np.float32)) in range(3)
+    assert agent.act(np.zeros((5, 2))).shape == (5,)
+    for wrong in (np.zeros(3), np.zeros(4), np.zeros((5, 3)), np.float32(1.0)):
+        with pytest.raises(ValueError, match=r"of shape \(2,\) \(one\) or \(N, 2\)") as error:
+            agent.act(wrong)
+        assert isinstance(error.value, ObservationError)
+        assert str(error.value).endswith(f"got {wrong.dtype} of shape {np.shape(wrong)}")
+    shown = repr(agent)
+    assert shown == str(agent) == (f"Agent(env={LINE}, method=baseline, encoder=vector, "
+                                   f"episodes={agent.episode}, steps=30)")  # fmt: skip
+    train_population([toy_config(LINE_DISCRETE, "onehot", steps=30)], [tmp_path / "d"],
+                     threads=1)  # fmt: skip
+    discrete = load_agent(tmp_path / "d")
+    assert discrete.act(np.int64(1)) in range(3) and discrete.act(np.array([0, 1])).shape == (2,)
+    with pytest.raises(ObservationError, match=r"integer observations .* got float64"):
+        discrete.act(np.array([0.5, 1.0]))
+
+
 def test_population_agents_stop_apart_and_equal_alone(tmp_path):
     """Two seeds with an episode budget stop at different real steps; the one that stopped
     has its env reset and stepped (a SyncVectorEnv refuses a finished env), and each agent's
@@ -198,6 +224,16 @@ def test_image_env_through_v_end_to_end(tmp_path):
     spec = make_spec(toy_config(env, "vae"))
     random = run_episodes(spec, random_policy(spec.n_actions, 0), 50, seed=1_000_000)
     assert result["success"] >= 0.9 and result["mean_return"] > random["mean_return"] + 1.0
+    import shutil
+
+    agent = load_agent(run)  # a saved agent carries its V: it acts with V's run deleted
+    import gymnasium
+
+    frames = np.stack([gymnasium.make(env).reset(seed=s)[0] for s in range(4)])
+    saved = agent.save(tmp_path / "saved")
+    shutil.rmtree(v)
+    assert not (saved / "vae" / "classifier.safetensors").exists()
+    assert np.array_equal(Agent.load(saved).act(frames), agent.act(frames))
     wrong = runner.invoke(app, ["train", str(tmp_path / "b"), "--env", LINE, "--vae", str(v),
                                 "--set", "encoder=vae", "--steps", "10"])  # fmt: skip
     assert wrong.exit_code != 0 and "vector observations" in str(wrong.exception)

@@ -239,7 +239,7 @@ def test_imagined_accuracy_judges_imagined_transitions_by_the_rules():
 
 
 def test_where_the_papers_baseline_stood():
-    rows = [{"task": "hard", "method": "baseline", "budget": b, "mean": m}
+    rows = [{"task": "hard", "method": "baseline", "budget": b, "mean": m, "n": 5}
             for b, m in ((250, 5.0), (1000, 31.0), (2000, 84.0))]  # fmt: skip
     (line,) = where_paper_stood(rows)
     assert "(30.1%)" in line and "by 1000 episodes" in line

@@ -19,7 +19,13 @@ import yaml
 from imagine.config import parse_seeds
 from imagine.errors import ConfigError
 from imagine.study.experiments import Job, LocalRunner, RayRunner, run_job, study_jobs
-from imagine.study.report import claims, iqm_interval, markdown_table, summarize
+from imagine.study.report import (
+    claims,
+    iqm_interval,
+    markdown_table,
+    summarize,
+    where_paper_stood,
+)
 from imagine.study.reproduce import StudyConfig, same_study
 
 IMAGINE = str(Path(sys.executable).parent / "imagine")
@@ -47,6 +53,9 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
                  "figures/generalization_hard.png"]:  # fmt: skip
         assert (out / name).is_file(), name
     assert len(list(out.glob("runs/*/evaluation-*.json"))) == 2 * 2 * 2 * 2
+    progress = re.findall(r"study: (\d+)/320 episodes \(\d+%\).*, \d+:\d\d elapsed, ETA",
+                          done.stderr)  # fmt: skip
+    assert progress and progress[-1] == "320", done.stderr  # a log file's lines, in episodes
     table = (out / "tables" / "table_original.md").read_text().splitlines()
     assert table[0].startswith("| Episodes | Base DQN | Augmented | % increase")
     assert [line.split("|")[1].strip() for line in table[2:]] == ["20", "40", "random agent"]
@@ -63,6 +72,7 @@ def test_smoke_study_writes_every_file_and_a_rerun_runs_nothing(tmp_path):
     report = (out / "REPORT.md").read_text()
     assert "Table I (original task)" in report and "Table II (hard task)" in report
     assert "Deviations from the paper" in report and "claims" in report
+    assert "No claims**: 2 seeds" in report and "beats baseline" not in report  # 2 seeds
     assert "original, plans" in report and "hard, model generalization" in report
     assert "## Learning curves" in report and "area under the success curve" in report
     curves = (out / "tables" / "curves.md").read_text().splitlines()
@@ -178,6 +188,13 @@ def test_statistics_and_tables():
     said = "\n".join(claims(rows))
     assert "hard: augmented beats baseline** (supported" in said
     assert "at least as good as the paper's**: at 1 of 1 budgets (2000)" in said
+    for seeds in (1, 2):  # too few seeds: one line, and no claim
+        few = summarize([e for e in evaluations if e["seed"] < seeds])
+        (line,) = claims(few)
+        assert f"No claims**: {seeds} seed" in line and "at least 3 seeds" in line
+        assert "beats" not in line and "supported" not in line
+        assert where_paper_stood(few) == []
+    assert where_paper_stood(rows)  # 5 seeds: said
 
 
 @pytest.mark.parametrize(

@@ -128,8 +128,8 @@ def test_bad_checkpoints_get_clear_errors(tmp_path):
 
 def test_a_run_folder_with_another_config_is_not_resumed(tmp_path):
     smoke(tmp_path, epochs=1)
-    with pytest.raises(CheckpointError, match="another config"):
-        smoke(tmp_path, epochs=2, beta=1.0)
+    with pytest.raises(CheckpointError, match=r"another config \(beta 4\.0 -> 1\.0\)"):
+        smoke(tmp_path, epochs=2, beta=1.0)  # the field named, old -> new
 
 
 def test_bad_configs():

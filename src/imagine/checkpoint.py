@@ -58,6 +58,18 @@ def write_json(path: str | Path, document: Any) -> Path:
     return atomic_write_text(path, json.dumps(document, indent=2, sort_keys=True) + "\n")
 
 
+def changed_fields(saved: Mapping[str, Any], asked: Mapping[str, Any], skip=()) -> str:
+    """The fields whose value differs between a saved config and the one asked for, as
+    ``name old -> new`` joined by commas (``skip``: fields allowed to differ), in the
+    order of ``asked``."""
+    names = [*asked, *(k for k in saved if k not in asked)]
+    return ", ".join(
+        f"{name} {saved.get(name)!r} -> {asked.get(name)!r}"
+        for name in names
+        if name not in skip and saved.get(name) != asked.get(name)
+    )
+
+
 def read_json(path: str | Path, what: str = "file") -> Any:
     path = Path(path)
     if not path.is_file():

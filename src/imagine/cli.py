@@ -4,8 +4,12 @@ one-line message and exit status 2."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
+from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
@@ -13,7 +17,14 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
 from imagine import ENV_ID
 from imagine.errors import ImagineError
@@ -61,6 +72,67 @@ vae_app = typer.Typer(
 )
 app.add_typer(vae_app, name="vae")
 console = Console(stderr=True)
+
+
+def duration(seconds: float) -> str:
+    """``1:02:03`` or ``2:03``: hours, minutes and seconds."""
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+class Bar:
+    """Progress in ``unit`` (episodes, steps, runs) with what :meth:`update` says of it (the
+    recent return or success): a rich bar on a terminal; in a log file, where a bar shows
+    nothing until the end, a plain line every ``every`` of the total (done/total, unit,
+    elapsed time and ETA)."""
+
+    def __init__(self, label: str, total: int, unit: str, done: int = 0, every: float = 0.05):
+        self.label, self.total, self.unit, self.every = label, max(int(total), 1), unit, every
+        self.done = self.first = int(done)
+        self.info = ""
+        self.terminal = console.is_terminal
+        self.start = time.perf_counter()
+        self.printed = -1
+        self.progress: Progress | None = None
+
+    def __enter__(self) -> Bar:
+        if self.terminal:
+            self.progress = Progress(
+                TextColumn(escape(self.label)), BarColumn(), MofNCompleteColumn(),
+                TextColumn(self.unit), TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
+                TextColumn("ETA"), TimeRemainingColumn(), console=console,
+            )  # fmt: skip
+            self.progress.__enter__()
+            self.task = self.progress.add_task(self.unit, total=self.total,
+                                               completed=self.done, info="")  # fmt: skip
+        return self
+
+    def update(self, done: int, info: str | None = None) -> None:
+        self.done = min(int(done), self.total)
+        self.info = self.info if info is None else info
+        if self.progress is not None:
+            self.progress.update(self.task, completed=self.done, info=self.info)
+            return
+        step = int(self.done / self.total / self.every)
+        if step > self.printed:
+            self.printed = step
+            self._line()
+
+    def _line(self) -> None:
+        elapsed = time.perf_counter() - self.start
+        gained = self.done - self.first
+        eta = duration(elapsed * (self.total - self.done) / gained) if gained > 0 else "?"
+        info = f", {self.info}" if self.info else ""
+        line = (
+            f"{self.label}: {self.done}/{self.total} {self.unit} "
+            f"({100 * self.done / self.total:.0f}%){info}, {duration(elapsed)} elapsed, ETA {eta}"
+        )
+        console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+    def __exit__(self, *exc) -> None:
+        if self.progress is not None:
+            self.progress.__exit__(*exc)
 
 
 class TaskName(StrEnum):
@@ -242,7 +314,8 @@ def vae_train(
 
         train_vae(config, out, on_epoch=on_epoch, device=device)
     console.print(
-        f"V trained in {out} ({time.perf_counter() - start:.0f} s); next: imagine vae report {out}"
+        f"V trained in {out} ({time.perf_counter() - start:.0f} s); next: imagine vae report {out}",
+        soft_wrap=True,
     )
 
 
@@ -357,6 +430,38 @@ def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
     return {**values, "encoder": ENCODER_OF_KIND[kind]}
 
 
+RECENT = 20
+"""The training bar's return and success: the mean of each agent's last RECENT episodes."""
+
+
+def recent_outcome(recent: list[deque]) -> str:
+    """The mean return (and success, where the environment reports it) of the episodes in
+    ``recent`` (per agent, (return, success) pairs), as the training bar shows it."""
+    pairs = [pair for episodes in recent for pair in episodes]
+    returns = [r for r, _ in pairs if r is not None]
+    if not returns:
+        return ""
+    text = f"return {sum(returns) / len(returns):.2f}"
+    successes = [s for _, s in pairs if s is not None]
+    if successes:
+        text += f", success {100 * sum(successes) / len(successes):.0f}%"
+    return text + f" (last {max(len(episodes) for episodes in recent)} episodes)"
+
+
+def saved_counts(folder: Path) -> tuple[int, int]:
+    """(episodes, real time steps) of the run checkpointed in ``folder``; (0, 0) if none (or
+    if it holds another thing, such as a saved agent, which training refers to)."""
+    from imagine.checkpoint import read_json
+    from imagine.learning.agent_checkpoint import FORMAT
+
+    if not (folder / "agent.json").is_file():
+        return 0, 0
+    meta = read_json(folder / "agent.json", "agent checkpoint metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        return 0, 0
+    return int(meta.get("episode", 0)), int(meta.get("t", 0))
+
+
 @app.command("train")
 def train_agent(
     out: Annotated[
@@ -444,6 +549,11 @@ def train_agent(
         "init_from": ("--init-from", None if init_from is None else str(init_from)),
     }
     values = with_options(overrides, given)
+    if values.get("env", ENV_ID) != ENV_ID and "steps" not in values and "episodes" not in values:
+        raise ImagineError(
+            f"--env {values['env']} needs a budget: give --steps N, real time steps "
+            "(e.g. --steps 20000), or --episodes N"
+        )
     if "steps" in values and "episodes" not in values:
         values["episodes"] = UNBOUNDED_EPISODES
     values = with_encoder_of_env(values)
@@ -456,30 +566,42 @@ def train_agent(
         folders = [out / f"seed-{s}" for s in chosen]
     for c, folder in zip(configs, folders, strict=True):
         check_folder(c, folder)  # errors before any progress bar is drawn
+    counts = [saved_counts(folder) for folder in folders]
+    finished = [e >= c.episodes or 0 < c.steps <= t
+                for c, (e, t) in zip(configs, counts, strict=True)]  # fmt: skip
+    for folder, (e, t), done_already in zip(folders, counts, finished, strict=True):
+        if done_already:
+            message = (f"{folder} is finished ({e} episodes, {t} time steps); nothing to train "
+                       "(a larger --episodes or --steps trains on)")  # fmt: skip
+            console.print(message, soft_wrap=True)
+    if all(finished):
+        return
     torch_device = resolve_device(device)
     encoder = make_encoder(config, torch_device)
     start = time.perf_counter()
     label = f"seed {config.seed}" if seeds is None else f"seeds {seeds}"
     what = config.task if config.env == ENV_ID else config.env
     by_steps = config.steps > 0 and config.episodes == UNBOUNDED_EPISODES
-    done = [0] * len(configs)
-    with Progress(TextColumn(f"{config.method} {what} {label}"), BarColumn(),
-                  MofNCompleteColumn(), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
-        budget = config.steps if by_steps else config.episodes
-        task_id = bar.add_task("budget", total=budget * len(configs))
+    budget = config.steps if by_steps else config.episodes
+    done = [min(t, budget) if by_steps else e for e, t in counts]
+    recent: list[deque] = [deque(maxlen=RECENT) for _ in configs]  # (return, success)
+    with Bar(f"{config.method} {what} {label}", budget * len(configs),
+             "steps" if by_steps else "episodes", sum(done)) as bar:  # fmt: skip
 
-        def on_episode(i: int, episode: int, t: int) -> None:
+        def on_episode(i: int, episode: int, t: int, stats: dict[str, float]) -> None:
             done[i] = min(t, budget) if by_steps else episode
-            bar.update(task_id, completed=sum(done))
+            recent[i].append((stats.get("charts/return"), stats.get("charts/success")))
+            bar.update(sum(done), recent_outcome(recent))
 
         result = train_population(configs, folders, on_episode, threads=threads,
                                   encoder=encoder, device=str(torch_device))  # fmt: skip
     seconds = time.perf_counter() - start
     for i, agent in enumerate(result.agents):
-        if agent is not None:
+        if agent is not None and not finished[i]:
             steps = f"{agent.episode} episodes, {agent.t} time steps"
-            console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}")
-    console.print(f"{seconds:.0f} s")
+            console.print(f"trained {folders[i]}: {steps}; next: imagine evaluate {folders[i]}",
+                          soft_wrap=True)  # fmt: skip
+    console.print(f"trained in {seconds:.0f} s", soft_wrap=True)
     if result.failures:
         raise NumericalError("; ".join(result.failures.values()))
 
@@ -488,7 +610,11 @@ def train_agent(
 def evaluate_agent(
     run: Annotated[Path, typer.Argument(help="An agent run folder.")],
     episodes: Annotated[
-        int | None, typer.Option(help="Greedy test episodes (default 1000).")
+        int | None,
+        typer.Option(
+            help="Greedy test episodes (default: the run's eval_episodes, 1000; 200 with the "
+            "smoke preset)."
+        ),
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the test episodes.")] = 1_000_000,
 ) -> None:
@@ -534,9 +660,9 @@ def evaluate_agent(
         "hand_calibration_all": calibration_all, "imagined_support_auroc": support})  # fmt: skip
     print(f"{run}: {agent.config.method}, task {agent.config.task}, after {agent.episode} episodes")
     low, high = 100 * result["ci_low"], 100 * result["ci_high"]
-    print(f"success {100 * result['success']:.1f}% (95% CI {low:.1f}-{high:.1f}%), {n} episodes; "
-          "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f})"
-          .format(**result))  # fmt: skip
+    print(f"success {100 * result['success']:.1f}% (95% CI [{low:.1f}, {high:.1f}]%), {n} "
+          "episodes; mean return {mean_return:.2f} (95% CI [{return_ci_low:.2f}, "
+          "{return_ci_high:.2f}])".format(**result))  # fmt: skip
     if "success_observation" in result:
         print(f"C acts on a filtered belief (w = {agent.config.filter_weight}); on V's means "
               f"alone it succeeds {100 * result['success_observation']:.1f}%")  # fmt: skip
@@ -567,13 +693,13 @@ def evaluate_agent(
           "{reward:.1%}, terminal {terminal:.1%}".format(**imagined_other))  # fmt: skip
     if detection is not None:
         print(f"disagreement of M's {agent.config.model_ensemble} members as a detector of wrong "
-              "imagined states: AUROC {disagreement_auroc:.3f}; state right in the most-agreed "
-              "half {state_agreed_half:.1%}, in the rest {state_disagreed_half:.1%}"
-              .format(**imagined))  # fmt: skip
+              f"imagined states: {auroc_text(detection, imagined['state'])}; state right in "
+              "the most-agreed half {state_agreed_half:.1%}, in the rest "
+              "{state_disagreed_half:.1%}".format(**imagined))  # fmt: skip
     if support is not None:
         print(
             f"support (distance to M_R's nearest start with the same action) as a detector of "
-            f"wrong imagined states: AUROC {support:.3f}"
+            f"wrong imagined states: {auroc_text(support, imagined['state'])}"
         )
     if "accepted" in imagined:
         gate = agent.config.imagination_gate
@@ -583,6 +709,20 @@ def evaluate_agent(
               f"{agent.config.imagination_gate_scale}: threshold {{gate_threshold:.3f}}, accepts "
               "{accepted:.1%}; state right in the accepted {state_accepted:.1%}, in the rejected "
               "{state_rejected:.1%}".format(**imagined))  # fmt: skip
+
+
+def auroc_text(value: float, state_right: float) -> str:
+    """``AUROC 0.812``, or ``AUROC n/a`` with the reason where there is none: a detector of
+    wrong imagined states needs both wrong and right ones (``state_right``: their share)."""
+    if not math.isnan(value):
+        return f"AUROC {value:.3f}"
+    if state_right >= 1:
+        why = "every imagined state was right, none wrong to detect"
+    elif state_right <= 0:
+        why = "every imagined state was wrong, none right to tell them from"
+    else:
+        why = "undefined on these transitions"
+    return f"AUROC n/a ({why})"
 
 
 def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
@@ -599,12 +739,12 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     print(f"{run}: {agent.config.method}, {agent.config.env}, after {agent.t} time steps "
           f"({agent.episode} episodes)")  # fmt: skip
     print(
-        "mean return {mean_return:.2f} (95% CI {return_ci_low:.2f}-{return_ci_high:.2f}), "
+        "mean return {mean_return:.2f} (95% CI [{return_ci_low:.2f}, {return_ci_high:.2f}]), "
         "mean length {mean_length:.1f}, {episodes} greedy episodes".format(**result)
     )
     if "success" in result:
-        print(f"success {100 * result['success']:.1f}% (95% CI {100 * result['ci_low']:.1f}-"
-              f"{100 * result['ci_high']:.1f}%)")  # fmt: skip
+        print(f"success {100 * result['success']:.1f}% (95% CI [{100 * result['ci_low']:.1f}, "
+              f"{100 * result['ci_high']:.1f}]%)")  # fmt: skip
 
 
 @app.command("compare")
@@ -785,6 +925,60 @@ def study_command(
     console.print(f"studied in {time.perf_counter() - start:.0f} s; table: {out / 'STUDY.md'}")
 
 
+class StudyProgress:
+    """While a study runs, its bar every ``period`` seconds: the episodes its runs have
+    trained (their metrics.csv files, which the worker processes write), with the recent
+    success of the running ones (their last metrics row each) and their names."""
+
+    def __init__(self, jobs, running: list[str], period: float = 5.0) -> None:
+        import threading
+
+        self.jobs, self.running, self.period = jobs, running, period
+        self.total = sum(max(job.budgets) for job in jobs)
+        self.stopped = threading.Event()
+
+    @contextmanager
+    def showing(self, bar: Bar) -> Iterator[None]:
+        """Update ``bar`` from a thread while the block runs, and once at its end."""
+        import threading
+
+        def poll() -> None:
+            while not self.stopped.wait(self.period):
+                bar.update(*self.count())
+
+        thread = threading.Thread(target=poll, daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            self.stopped.set()
+            thread.join()
+            bar.update(*self.count())
+
+    def count(self) -> tuple[int, str]:
+        """The episodes trained so far, and what the bar says beside them."""
+        from imagine.metrics import read_metrics
+
+        done, successes = 0, []
+        for job in self.jobs:
+            budget = max(job.budgets)
+            metrics = Path(job.folder) / "metrics.csv"
+            if job.finished():
+                done += budget
+            elif metrics.is_file():
+                rows = read_metrics(metrics)
+                done += min(int(rows[-1]["step"]), budget) if rows else 0
+                if rows and job.name in self.running and "charts/success" in rows[-1]:
+                    successes.append(rows[-1]["charts/success"])
+        running = list(self.running)
+        info = ""
+        if successes:
+            info = f"success {100 * sum(successes) / len(successes):.0f}% (running runs' last rows)"
+        if running:
+            info += ("; " if info else "") + "running: " + ", ".join(running)
+        return done, info
+
+
 @app.command("reproduce")
 def reproduce_study(
     out: Annotated[Path, typer.Argument(help="Study folder (resumed if it holds one).")],
@@ -830,7 +1024,7 @@ def reproduce_study(
     V, every (task, method, seed) agent evaluated at every budget, Tables I and II, figures and
     REPORT.md, all in OUT."""
     from imagine.config import parse_assignments, parse_seeds
-    from imagine.study.experiments import folder_lock
+    from imagine.study.experiments import folder_lock, study_jobs
     from imagine.study.reproduce import StudyConfig, reproduce
 
     def numbers(text: str, name: str) -> tuple[int, ...]:
@@ -851,32 +1045,30 @@ def reproduce_study(
         console.print(f"note: --seeds {seeds} is seed {config.seeds[0]} alone; five seeds are "
                       "--seeds 0-4")  # fmt: skip
     start = time.perf_counter()
-    runs_per_budget = len(config.tasks) * 2 * len(config.seeds)
-    total = runs_per_budget * (len(config.budgets) if separate_runs else 1)
+    jobs = study_jobs(out, config.tasks, config.seeds, config.budgets,
+                      separate_runs=separate_runs)  # fmt: skip
     running: list[str] = []
-    with folder_lock(out, notice=console.print), Progress(  # refused before any bar shows
-        TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("{task.fields[running]}"), console=console,
-    ) as bar:  # fmt: skip
-        task_id = bar.add_task("runs", total=total, running="")
+    progress = StudyProgress(jobs, running)
+    with (
+        folder_lock(out, notice=console.print),  # refused before any bar shows
+        Bar("study", progress.total, "episodes", progress.count()[0]) as bar,
+        progress.showing(bar),
+    ):
 
         def on_start(job) -> None:
             running.append(job.name)
-            bar.update(task_id, running="running: " + ", ".join(running))
 
         def on_done(job, error) -> None:
             running.remove(job.name)
             if error is not None and "Interrupted" not in error:
                 console.print(f"[red]failed[/red] {escape(error)}")
-            bar.update(task_id, advance=1, running="running: " + ", ".join(running))
 
         def log(message: str) -> None:
             console.print(message)
-            if "already finished" in message:
-                bar.update(task_id, completed=int(message.split()[0]))
 
         report, failures = reproduce(config, out, log, on_start, on_done)
-    console.print(f"study done in {time.perf_counter() - start:.0f} s; report: {report}")
+    console.print(f"study done in {time.perf_counter() - start:.0f} s; report: {report}",
+                  soft_wrap=True)  # fmt: skip
     if failures:
         console.print(f"{len(failures)} run(s) failed; see {report}")
         raise typer.Exit(1)

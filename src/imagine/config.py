@@ -593,13 +593,18 @@ class AgentConfig:
             raise ConfigError("agent.oracle_sigma must be positive")
 
 
-def check_imagines(config: AgentConfig) -> AgentConfig:
-    """An error if an augmented run would end before its I_start. Asked of a whole run (`imagine
-    train`, a study's largest budget), not of a config trained to an early evaluation point."""
-    if config.method == "augmented" and config.imagination_start >= config.episodes:
+def check_imagines(config: AgentConfig, budget_option: str = "--episodes") -> AgentConfig:
+    """An error if an augmented run would end before its I_start, saying which budget would
+    work (``budget_option``: how the command sets it) and which I_start would. Asked of a whole
+    run (`imagine train`, a study's largest budget), not of a config trained to an early
+    evaluation point."""
+    start, episodes = config.imagination_start, config.episodes
+    if config.method == "augmented" and start >= episodes:
         raise ConfigError(
-            f"agent.imagination_start ({config.imagination_start}) is beyond the episode "
-            f"budget ({config.episodes}): the augmented agent would never imagine"
+            f"agent.imagination_start ({start}) is beyond the episode budget ({episodes}): "
+            f"the augmented agent would never imagine; give a budget above it "
+            f"({budget_option} {2 * start} works) or start imagining earlier "
+            f"(--set imagination_start={episodes // 2})"
         )
     return config
 

@@ -14,6 +14,10 @@ class ConfigError(ImagineError, ValueError):
     """A configuration value, or a combination of values, is invalid."""
 
 
+class ObservationError(ImagineError, ValueError):
+    """An observation handed to an agent (``Agent.act``) is not of the shape or type it acts on."""
+
+
 class FragmentFolderError(ImagineError):
     """A folder of fragment photographs does not follow the documented layout."""
 

@@ -18,7 +18,7 @@ I_D into M_I and N_I updates of C on M_I. The baseline is the same agent with im
 :class:`Agent` is a trained agent as evaluation, planning and the generalization test use it:
 its config, encoder, C and M. ``Agent.load(RUN)`` reads one; ``agent.act(observations)`` gives
 C's greedy (or epsilon-greedy) actions for camera images, what a robot calls at each step;
-``agent.save(FOLDER)`` writes it (config, C and M, no memories) where ``Agent.load`` and
+``agent.save(FOLDER)`` writes it (config, C, M and V, no memories) where ``Agent.load`` and
 ``imagine evaluate`` read it::
 
     agent = Agent.load("runs/hard-aug/seed-0")
@@ -35,10 +35,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from imagine.checkpoint import load_state_dict_strict, read_json
+from imagine import ENV_ID
+from imagine.checkpoint import changed_fields, load_state_dict_strict, read_json, save_tensors
 from imagine.config import AgentConfig, from_dict
 from imagine.envs.spec import make_spec
-from imagine.errors import CheckpointError, ConfigError
+from imagine.errors import CheckpointError, ConfigError, ObservationError
 from imagine.learning.agent_checkpoint import READABLE_FORMATS, part, read_checkpoint, save_agent
 from imagine.learning.belief import BeliefTracker
 from imagine.learning.extras import extras_of
@@ -91,7 +92,11 @@ def image_encoder(config: AgentConfig, device: str | torch.device = "cpu") -> Im
     return encoder
 
 
-@dataclasses.dataclass
+SAVED_VAE = "vae"
+"""The folder, inside a saved agent's (:meth:`Agent.save`), of the V it sees through."""
+
+
+@dataclasses.dataclass(repr=False)
 class Agent:
     """A trained agent: C and M (single-agent modules, eval mode) after ``episode`` episodes
     and ``t`` real time steps."""
@@ -106,6 +111,14 @@ class Agent:
     """The start latents mu_t and actions a_t of the real transitions in its M_R (what the
     ``support`` uncertainty measures against, :mod:`imagine.learning.gate`); None if not saved."""
     _belief: BeliefTracker | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """One short line: environment (and task), method, encoder, episodes and steps; never
+        the networks or the memory."""
+        c = self.config
+        env = f"{c.env}, task={c.task}" if c.env == ENV_ID else c.env
+        return (f"Agent(env={env}, method={c.method}, encoder={c.encoder}, "
+                f"episodes={self.episode}, steps={self.t})")  # fmt: skip
 
     @classmethod
     def load(cls, folder: str | Path) -> Agent:
@@ -132,12 +145,18 @@ class Agent:
         row of the previous call (the same N). True everywhere (the default) acts on V's means,
         as the first step of an episode does."""
         images = np.asarray(observations)
-        one = images.ndim == getattr(self.encoder, "observation_ndim", 3)
+        one = check_observations(self.encoder, images)
         if one:
             images = images[None]
             macrostates = None if macrostates is None else np.asarray(macrostates)[None]
         if self.config.encoder == "oracle" and macrostates is None:
             raise ConfigError("an oracle-encoder agent acts on macrostates: pass macrostates")
+        if macrostates is not None and np.shape(macrostates) != (len(images), 4):
+            given = np.shape(macrostates[0]) if one else np.shape(macrostates)
+            raise ObservationError(
+                f"macrostates are (4,) for one observation or (N, 4) for N; got {given} "
+                f"beside {'one observation' if one else f'{len(images)} observations'}"
+            )
         belief, rows = self._episodes(len(images), episode_start), np.arange(len(images))
         actions = greedy_actions(self.controller, self.encoder, images, macrostates, belief, rows)
         if epsilon > 0:
@@ -166,15 +185,66 @@ class Agent:
         return self._belief
 
     def save(self, folder: str | Path) -> Path:
-        """Write this agent (its config, C, M and the start states of its M_R where it has
-        them) into ``folder``, for :meth:`load` and ``imagine evaluate``; not a run that
-        training resumes (no memories, optimizers or random streams). Returns the folder."""
+        """Write this agent (its config, C, M, the start states of its M_R where it has
+        them, and V where it sees through one) into ``folder``, for :meth:`load` and
+        ``imagine evaluate``; not a run that training resumes (no memories, optimizers or
+        random streams). V goes into ``folder/vae`` (weights as safetensors, config as JSON,
+        and its latent classifier where it has one), so the folder loads wherever V's own
+        run has gone. Returns the folder."""
         tensors = {f"controller.{k}": v for k, v in self.controller.state_dict().items()}
         tensors |= {f"model.{k}": v for k, v in self.model.state_dict().items()}
         if self.memory_starts is not None:
             tensors["real.mu"], tensors["real.action"] = self.memory_starts
         values = {"episode": self.episode, "t": self.t, "config": dataclasses.asdict(self.config)}
-        return save_agent(Path(folder), tensors, values)
+        vision = getattr(self.encoder, "vae", None)
+        if vision is not None:
+            values["vae"] = SAVED_VAE
+        folder = save_agent(Path(folder), tensors, values)
+        if vision is not None:
+            from imagine.models.vision_training import save_vae
+
+            save_vae(folder / SAVED_VAE, vision, self.encoder.vision_config, self.encoder.epoch, {})
+            classifier = getattr(self.encoder, "classifier", None)
+            if classifier is not None:
+                save_tensors(folder / SAVED_VAE / "classifier.safetensors",
+                             classifier.state_dict())  # fmt: skip
+        return folder
+
+
+def check_observations(encoder, observations: np.ndarray) -> bool:
+    """Whether ``observations`` are one observation (True) or a batch of them (False), as the
+    encoder's ``observation_shape`` and ``observation_dtype`` call for; an
+    :class:`ObservationError` naming the expected and the given shape otherwise. An encoder
+    without an ``observation_shape`` (the oracle, which reads macrostates) takes any."""
+    x = observations
+    shape = getattr(encoder, "observation_shape", None)
+    if shape is None:
+        return x.ndim == getattr(encoder, "observation_ndim", 3)
+
+    def fits(given: tuple[int, ...]) -> bool:
+        return len(given) == len(shape) and all(
+            isinstance(e, str) or e == g for e, g in zip(shape, given, strict=True)
+        )
+
+    dtype = getattr(encoder, "observation_dtype", None)
+    kind_ok = (
+        dtype is None
+        or (dtype == "integer" and x.dtype.kind in "iu")
+        or (dtype != "integer" and x.dtype == dtype)
+    )
+    if isinstance(encoder, ImageEncoder) and x.ndim >= 1 and x.shape[-1] not in (1, 3, 4):
+        kind_ok = False  # channels: gray, RGB or RGBA
+    one = x.ndim == len(shape) and fits(x.shape)
+    batch = x.ndim == len(shape) + 1 and fits(x.shape[1:])
+    if kind_ok and (one or batch):
+        return one
+    what = {"uint8": "uint8 images", "integer": "integer observations"}.get(dtype, "observations")
+    one_shape = "(" + ", ".join(map(str, shape)) + ("," if len(shape) == 1 else "") + ")"
+    batch_shape = "(" + ", ".join(["N", *map(str, shape)]) + ")"
+    raise ObservationError(
+        f"this agent acts on {what} of shape {one_shape} (one) or {batch_shape} (a batch); "
+        f"got {x.dtype} of shape {tuple(x.shape)}"
+    )
 
 
 @torch.no_grad()
@@ -225,8 +295,10 @@ def check_folder(config: AgentConfig, folder: Path) -> AgentConfig | None:
     saved = saved_config(folder)
     budget = {"episodes": config.episodes, "steps": config.steps}
     if saved is not None and dataclasses.replace(saved, **budget) != config:
+        differ = changed_fields(vars(saved), vars(config), skip=budget)
         raise CheckpointError(
-            f"{folder} holds a run with another config; use a new folder or the same settings"
+            f"{folder} holds a run with another config ({differ}); use a new folder or the "
+            "same settings"
         )
     return saved
 
@@ -238,6 +310,8 @@ def load_agent(folder: str | Path) -> Agent:
     if config is None:
         raise CheckpointError(f"{folder} holds no agent run (no agent.json)")
     tensors, meta = read_checkpoint(folder, READABLE_FORMATS)
+    if meta.get("vae") == SAVED_VAE:  # a saved agent carries its V
+        config = dataclasses.replace(config, vae_run=str(folder / SAVED_VAE))
     encoder = make_encoder(config)
     n_actions = make_spec(config).n_actions
     controller, model = new_networks(config, encoder.latent_dim, n_actions)

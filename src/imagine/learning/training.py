@@ -71,14 +71,15 @@ def dynamics_source(config: AgentConfig) -> Path:
 def train_population(
     configs: Sequence[AgentConfig],
     folders: Sequence[str | Path],
-    on_episode: Callable[[int, int, int], None] | None = None,
+    on_episode: Callable[[int, int, int, dict[str, float]], None] | None = None,
     threads: int | None = None,
     encoder: Any = None,
     device: str = "cpu",
 ) -> PopulationResult:
     """Train each ``configs[i]`` into ``folders[i]`` (resuming), all in one lockstep
-    population. ``on_episode(i, episode, t)`` is called after each of agent i's episodes
-    (``t``: its real time steps so far)."""
+    population. ``on_episode(i, episode, t, stats)`` is called after each of agent i's
+    episodes (``t``: its real time steps so far; ``stats``: the episode's, such as
+    ``charts/return`` and, where the environment reports it, ``charts/success``)."""
     if threads is not None:
         torch.set_num_threads(threads)
     folders = [Path(f) for f in folders]
@@ -108,7 +109,7 @@ def train_population(
                     windows[i][key].append(value)
                 _after_episode(population, i, folders[i], loggers[i], windows[i], stop.signal)
                 if on_episode is not None:
-                    on_episode(i, population.episode[i], population.t[i])
+                    on_episode(i, population.episode[i], population.t[i], stats)
             for i, message in sorted(population.failures.items()):
                 failures[i] = f"{folders[i]}: {message}"
             population.failures.clear()
@@ -172,7 +173,7 @@ def train(
     """Run Algorithm 1 into ``folder``, resuming a run that was stopped there. ``encoder``:
     one made already by :func:`make_encoder` (default: made here)."""
     result = train_population(
-        [config], [folder], None if on_episode is None else lambda i, e, t: on_episode(e),
+        [config], [folder], None if on_episode is None else lambda i, e, t, stats: on_episode(e),
         threads=threads, encoder=encoder, device=device,
     )  # fmt: skip
     if result.failures:

@@ -36,6 +36,8 @@ class VectorEncoder:
 
     def __init__(self, size: int) -> None:
         self.latent_dim = int(size)
+        self.observation_shape = (self.latent_dim,)
+        """One observation's shape (``Agent.act`` checks what it is given against it)."""
 
     def encode(self, observations: Any, extra: Any = None) -> tuple[torch.Tensor, torch.Tensor]:
         mu = torch.as_tensor(np.asarray(observations, dtype=np.float32)).reshape(
@@ -48,6 +50,8 @@ class OneHotEncoder:
     """A Discrete observation as its one-hot vector (sigma = 0)."""
 
     observation_ndim = 0
+    observation_shape = ()
+    observation_dtype = "integer"
 
     def __init__(self, n: int) -> None:
         self.latent_dim = int(n)
@@ -63,11 +67,14 @@ class ImageEncoder:
     :func:`imagine.models.frames.to_vae_images`); V from ``imagine vae train --env``."""
 
     observation_ndim = 3
+    observation_shape = ("H", "W", "C")
+    """Any height and width (resized for V), C in 1, 3 or 4 channels."""
+    observation_dtype = "uint8"
 
     def __init__(self, run, device: str | torch.device = "cpu") -> None:
         from imagine.models.vision_training import load_vae
 
-        self.vae, config, _ = load_vae(run)
+        self.vae, config, self.epoch = load_vae(run)
         self.vae.eval().to(device)
         self.latent_dim = config.latent_dim
         self.vision_config = config

@@ -25,6 +25,7 @@ import yaml
 
 from imagine.checkpoint import (
     atomic_write_text,
+    changed_fields,
     load_state_dict_strict,
     load_tensors,
     optimizer_from_tensors,
@@ -163,7 +164,9 @@ def resume_point(folder: Path, config: VisionConfig) -> int:
     saved, epoch = _read_meta(folder)
     if dataclasses.replace(saved, epochs=config.epochs) != config:
         raise CheckpointError(
-            f"{folder} holds a V run with another config; use a new folder or the same settings"
+            f"{folder} holds a V run with another config "
+            f"({changed_fields(vars(saved), vars(config), skip=('epochs',))}); use a new "
+            "folder or the same settings"
         )
     if epoch > config.epochs:
         raise CheckpointError(

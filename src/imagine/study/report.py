@@ -157,8 +157,27 @@ def write_tables(out: Path, rows: list[dict[str, Any]], random: dict[str, float]
     return tables
 
 
+MIN_SEEDS = 3
+"""The fewest seeds per (task, method, budget) that REPORT.md draws a claim from."""
+
+
+def too_few_seeds(rows: list[dict[str, Any]]) -> int | None:
+    """The seeds per (task, method, budget) of ``rows`` (the fewest) when they are fewer than
+    :data:`MIN_SEEDS`, else None."""
+    seeds = min((r["n"] for r in rows if r["method"] in METHODS), default=0)
+    return seeds if seeds < MIN_SEEDS else None
+
+
 def claims(rows: list[dict[str, Any]]) -> list[str]:
-    """What our numbers say about the paper's claims, one sentence each, from the rows."""
+    """What our numbers say about the paper's claims, one sentence each, from the rows; from
+    fewer than :data:`MIN_SEEDS` seeds, one line that says none is made."""
+    seeds = too_few_seeds(rows)
+    if seeds is not None:
+        return [
+            f"- **No claims**: {seeds} seed{'s' if seeds != 1 else ''} per (task, method, "
+            f"budget) cannot tell the methods apart, nor ours from the paper's; claims need at "
+            f"least {MIN_SEEDS} seeds (e.g. `--seeds 0-{MIN_SEEDS - 1}`)."
+        ]
     cell = {(r["task"], r["budget"], r["method"]): r for r in rows}
     lines = []
     for task in dict.fromkeys(r["task"] for r in rows):
@@ -258,7 +277,9 @@ def curve_table(summary: list[dict[str, Any]]) -> str:
 
 def where_paper_stood(rows: list[dict[str, Any]], budget: int = 2000) -> list[str]:
     """For each task: the first budget at which our baseline's mean reaches the paper's
-    baseline mean at ``budget`` episodes."""
+    baseline mean at ``budget`` episodes; nothing from fewer than :data:`MIN_SEEDS` seeds."""
+    if too_few_seeds(rows) is not None:
+        return []
     lines = []
     for task in dict.fromkeys(r["task"] for r in rows):
         paper = PAPER_TABLES.get(task, {}).get(budget)

@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from imagine.checkpoint import atomic_write_text, read_json, write_json
+from imagine.checkpoint import atomic_write_text, changed_fields, read_json, write_json
 from imagine.config import (
     AGENT_PRESETS,
     VISION_PRESETS,
@@ -134,21 +134,30 @@ class StudyConfig:
             agent_preset(self.preset, episodes=budget, encoder="oracle", method="baseline",
                          **for_method(self.overrides, "baseline"))  # fmt: skip
             agent = agent_preset(self.preset, episodes=budget, encoder="oracle", **self.overrides)
-        check_imagines(agent)  # the runs are evaluated early, but must imagine by the last budget
+        # the runs are evaluated early, but must imagine by the last budget
+        check_imagines(agent, "--budgets")
+
+
+STUDY_KEEP = ("backend", "workers", "address", "baselines")
+"""The study settings that may change between runs of one study: how it runs, and its peer
+baselines (which never change our runs)."""
 
 
 def same_study(saved: dict[str, Any], config: StudyConfig) -> bool:
     """Whether a study folder's ``study.yaml`` (``saved``) is ``config``'s study: the same
     settings but for how it runs (backend, workers, address) and its peer baselines. An older
     file's seed count n reads as seeds 0..n-1; an older file has no baselines."""
-    keep = ("backend", "workers", "address", "baselines")  # peers never change our runs
-    saved = dict(saved)
+    return not study_changes(saved, config)
+
+
+def study_changes(saved: dict[str, Any], config: StudyConfig) -> str:
+    """The settings of ``config`` that differ from a study folder's ``study.yaml``
+    (``saved``), ``name old -> new`` each (:func:`same_study`); empty if none."""
+    saved = dict(saved or {})
     if isinstance(saved.get("seeds"), int):
         saved["seeds"] = list(range(saved["seeds"]))
     mine = yaml.safe_load(yaml.safe_dump(dataclasses.asdict(config)))
-    return {k: v for k, v in saved.items() if k not in keep} == {
-        k: v for k, v in mine.items() if k not in keep
-    }
+    return changed_fields(saved, mine, skip=STUDY_KEEP)
 
 
 def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -> str | None:
@@ -310,7 +319,9 @@ def _run_study(
     saved = out / "study.yaml"
     mine = yaml.safe_dump(dataclasses.asdict(config))
     if saved.is_file() and not same_study(yaml.safe_load(saved.read_text()), config):
-        raise ConfigError(f"{out} holds a study with other settings; use a new folder")
+        raise ConfigError(f"{out} holds a study with other settings "
+                          f"({study_changes(yaml.safe_load(saved.read_text()), config)}); "
+                          "use a new folder")  # fmt: skip
     atomic_write_text(saved, mine)
     vae_run = prepare_vision(config, out, log)
     jobs = study_jobs(

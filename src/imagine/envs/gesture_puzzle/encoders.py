@@ -54,6 +54,9 @@ class OracleEncoder:
 class VaeEncoder:
     """V's posterior; macrostates are read back with the run's latent classifier."""
 
+    observation_shape = (64, 64, 3)
+    observation_dtype = "uint8"
+
     def __init__(
         self,
         run: str | Path,
@@ -63,9 +66,10 @@ class VaeEncoder:
     ):
         from imagine.models.vision_training import load_classifier, load_vae
 
-        self.vae, config, _ = load_vae(run)
+        self.vae, config, self.epoch = load_vae(run)
         self.vae.eval().to(device)
         self.latent_dim = config.latent_dim
+        self.vision_config = config
         self.classifier = load_classifier(run, config.latent_dim)
         rng = np.random.default_rng(0)
         states = np.repeat(all_macrostates(), images_per_state, axis=0)
