@@ -91,6 +91,19 @@ def test_the_augmented_agent_has_the_populations_losses():
     assert imaginary > 80 * config.n_imaginary_updates  # imagination (and MVE) on most steps
 
 
+def test_an_agent_training_m_and_imagining_on_a_schedule_has_the_populations_losses():
+    """M, r and d trained every 3rd real step and rollouts every 2nd (``model_every``,
+    ``imagination_every``); C's N_I updates still every step."""
+    config = agent_preset("fast", encoder="oracle", method="augmented", steps=90,
+                          imagination_start=10, model_batch=32, model_every=3,
+                          imagination_every=2)  # fmt: skip
+    log = assert_same_run(config, OracleEncoder(config.oracle_sigma))
+    assert count(log, "losses/mdn") == 30 * config.model_updates  # steps 0, 3, ..., 87
+    assert count(log, "losses/reward") == 30 * (config.model_updates + config.reward_updates)
+    imaginary = count(log, "losses/controller") - 90 * config.n_real_updates
+    assert imaginary > 50 * config.n_imaginary_updates  # every step past I_start, not every 2nd
+
+
 def test_the_baseline_has_the_populations_losses():
     """The `fast` baseline: the paper's C (no target network), no M, 300 steps."""
     config = agent_preset("fast", encoder="oracle", method="baseline", steps=300)

@@ -375,6 +375,11 @@ class AgentConfig:
     """Capacity of the imaginary memory M_I (first in, first out)."""
     model_updates: int = 16
     """N_E: updates of each of M's networks per time step."""
+    model_every: int = 1
+    """Real time steps between two trainings of M (k >= 1): M's N_E updates and r and d's
+    ``reward_updates`` run on the steps t with t mod k = 0 (1: every step, the paper). MBPO
+    (Janner et al. 2019) trains its model every 250 environment steps; how often M needs it
+    here is docs/research/speed.md."""
     reward_updates: int = 0
     """Extra updates per time step of M's r- and d-networks alone, on batches of
     ``model_batch`` (0: the paper, N_E for all three). Early, r and d know the few goal and
@@ -458,6 +463,10 @@ class AgentConfig:
     """I_B: imagined rollouts per time step."""
     imagination_depth: int = 10
     """I_D: steps per imagined rollout at most."""
+    imagination_every: int = 1
+    """Real time steps between two imaginations (k >= 1): the I_B rollouts are made on the
+    steps t with t mod k = 0, and C's N_I updates on M_I run every step (1: the paper; MBPO
+    rolls out on a schedule too)."""
     log_every: int = 50
     """Episodes per metrics row."""
     accuracy_every: int = 250
@@ -502,7 +511,8 @@ class AgentConfig:
                 )
         positive = ("episodes", "real_batch", "imaginary_batch", "real_memory",
                     "imaginary_memory", "model_batch", "imagination_breadth",
-                    "imagination_depth", "log_every", "accuracy_every", "checkpoint_every",
+                    "imagination_depth", "model_every", "imagination_every", "log_every",
+                    "accuracy_every", "checkpoint_every",
                     "eval_episodes", "n_components", "model_ensemble", "controller_lr",
                     "model_lr", "reward_hidden", "terminal_hidden",
                     "imagination_gate_scale", "imagination_gate_window")  # fmt: skip

@@ -249,10 +249,11 @@ def train(config: AgentConfig, encoder=None, record: Callable | None = None) -> 
             M_R.add(mu=mu[None], sigma=sigma[None], action=a, next_mu=next_mu[None],
                     next_sigma=next_sigma[None], reward=torch.tensor(reward, dtype=torch.float32),
                     done=torch.tensor(terminated, dtype=torch.float32))  # line 11  # fmt: skip
-            for _ in range(c.model_updates if c.trains_model else 0):  # line 12: N_E
+            training_m = c.trains_model and t % c.model_every == 0  # every k steps
+            for _ in range(c.model_updates if training_m else 0):  # line 12: N_E
                 for key, loss in M.update(sample(M_R, c.model_batch * K, g), g, c).items():
                     log(f"losses/{key}", loss)  # line 13
-            for _ in range(c.reward_updates if c.trains_model else 0):  # r and d alone
+            for _ in range(c.reward_updates if training_m else 0):  # r and d alone
                 for key, loss in M.update(sample(M_R, c.model_batch, g), g, c, False).items():
                     log(f"losses/{key}", loss)
             imagining = c.method == "augmented" and episode >= c.imagination_start
@@ -261,10 +262,11 @@ def train(config: AgentConfig, encoder=None, record: Callable | None = None) -> 
                 y = (mve_target(C, M, b, c) if c.value_expansion and imagining
                      else C.td_target(b["reward"], b["next_mu"], b["done"]))  # fmt: skip
                 log("losses/controller_real", C.update(b["mu"], b["action"], y))  # line 15
-            if imagining:  # line 16
+            if imagining and t % c.imagination_every == 0:  # line 16, every k steps
                 start = (sample(M_R, I_B, g) if c.imagination_from == "memory"  # Dyna's, or mu_t
                          else {"mu": mu.expand(I_B, D), "sigma": sigma.expand(I_B, D)})  # fmt: skip
                 M_I.add(**gated(imagine(C, M, start, eps, g, c), first_steps, g, c))  # 17-18
+            if imagining:
                 for _ in range(c.n_imaginary_updates if len(M_I) else 0):  # line 19: N_I
                     b = sample(M_I, c.imaginary_batch, g)
                     y = C.td_target(b["reward"], b["next_z"], b["done"])

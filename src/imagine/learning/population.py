@@ -193,15 +193,7 @@ class Population:
             reward=torch.as_tensor(reward[live], dtype=torch.float32),
             done=torch.as_tensor(terminated[live], dtype=torch.float32),
         )  # fmt: skip
-        for _ in range(c.model_updates if c.trains_model else 0):
-            # K bootstrap batches, one per member of the MDN (PETS); one batch for K = 1
-            batch = self.real.sample(c.model_batch * c.model_ensemble, gens)
-            losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
-            for name, loss in losses.items():
-                self._record(f"losses/{name}", loss, rows)
-        for _ in range(c.reward_updates if c.trains_model else 0):  # r and d alone
-            batch = self.real.sample(c.model_batch, gens)
-            self.model.update(batch, gens, resample=c.model_latents == "sample", mdn=False)
+        self._train_model(live, gens)
         self._learn_from_real(live, c.n_real_updates, "losses/controller_real")
         if c.real_in_place_of_imagined:  # the control for imagination, from I_start on
             past = [i for i in live if self.episode[i] >= c.imagination_start]
@@ -221,6 +213,26 @@ class Population:
                 if stats is not None:
                     ended.append((i, stats))
         return ended
+
+    def _train_model(self, live: list[int], gens: list[torch.Generator | None]) -> None:
+        """Lines 12-13 for the agents whose step is one of M's (``model_every``): N_E updates
+        of M (MDN, r and d), then ``reward_updates`` of r and d alone."""
+        c = self.config
+        due = [i for i in live if self.t[i] % c.model_every == 0] if c.trains_model else []
+        if not due:
+            return
+        if len(due) < len(live):
+            gens = [g if i in due else None for i, g in enumerate(gens)]
+        rows = torch.as_tensor(due, device=self.device)
+        for _ in range(c.model_updates):
+            # K bootstrap batches, one per member of the MDN (PETS); one batch for K = 1
+            batch = self.real.sample(c.model_batch * c.model_ensemble, gens)
+            losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
+            for name, loss in losses.items():
+                self._record(f"losses/{name}", loss, rows)
+        for _ in range(c.reward_updates):  # r and d alone
+            batch = self.real.sample(c.model_batch, gens)
+            self.model.update(batch, gens, resample=c.model_latents == "sample", mdn=False)
 
     def _start_episodes(self) -> None:
         """Reset the envs of the agents starting an episode (each seeded as its spec says), and
@@ -302,6 +314,29 @@ class Population:
         imagining = [i for i in live if self.episode[i] >= c.imagination_start]
         if not imagining:
             return
+        rolling = [i for i in imagining if self.t[i] % c.imagination_every == 0]
+        if rolling:
+            self._roll_out(rolling, eps)
+        updates = self._imaginary_updates(imagining)
+        gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
+        for j in range(c.n_imaginary_updates):
+            # agents with updates left and something in M_I (a gate may have kept nothing yet)
+            learning = [i for i in imagining if updates[i] > j and self.imaginary.size[i] > 0]
+            if not learning:
+                break
+            if learning != imagining:
+                gens = [g if i in learning else None for i, g in enumerate(self.generators)]
+            rows = torch.as_tensor(learning, device=self.device)
+            b = self.imaginary.sample(c.imaginary_batch, gens)
+            loss = self.controller.update(
+                b["z"], b["action"], b["reward"], b["next_z"], b["done"], learning
+            )
+            self._record("losses/controller_imaginary", loss, rows)
+
+    def _roll_out(self, imagining: list[int], eps: list[float]) -> None:
+        """Lines 16-18 for ``imagining``: I_B rollouts each, stored in M_I as far as the
+        agent's gate keeps them."""
+        c = self.config
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
         mu, sigma = self._imagination_starts(gens)
         scale = posterior_scale(sigma)  # V's, before M's inputs lose it
@@ -339,20 +374,6 @@ class Population:
                     transitions = {key: value[keep] for key, value in transitions.items()}
                     totals.add_accepted(len(transitions["z"]))
             self.imaginary.add(i, **transitions)
-        updates = self._imaginary_updates(imagining)
-        for j in range(c.n_imaginary_updates):
-            # agents with updates left and something in M_I (a gate may have kept nothing yet)
-            learning = [i for i in imagining if updates[i] > j and self.imaginary.size[i] > 0]
-            if not learning:
-                break
-            if learning != imagining:
-                gens = [g if i in learning else None for i, g in enumerate(self.generators)]
-            rows = torch.as_tensor(learning, device=self.device)
-            b = self.imaginary.sample(c.imaginary_batch, gens)
-            loss = self.controller.update(
-                b["z"], b["action"], b["reward"], b["next_z"], b["done"], learning
-            )
-            self._record("losses/controller_imaginary", loss, rows)
 
     def _support(self, agent: int, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The support distance of an agent's imagined transitions to its M_R
