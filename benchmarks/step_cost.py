@@ -26,7 +26,8 @@ from __future__ import annotations
 import argparse
 import time
 from collections import defaultdict
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import torch
 from torch.utils.flop_counter import FlopCounterMode
@@ -106,7 +107,10 @@ def settings(args: argparse.Namespace) -> dict[str, tuple[list, Any, int]]:
                                method=method, imagination_start=0, episodes=10**6, **extra)
                   for seed in range(args.agents)]  # fmt: skip
         rows[f"GesturePuzzle hard, {args.agents} seeds, {encoder} | {name}"] = (
-            puzzle, make_encoder(puzzle[0]), args.steps)
+            puzzle,
+            make_encoder(puzzle[0]),
+            args.steps,
+        )
         if args.cartpole_steps:
             pole = [agent_preset("fast", env="CartPole-v1", encoder="vector", method=method,
                                  imagination_start=0, episodes=10**6, **extra)]  # fmt: skip
@@ -137,9 +141,9 @@ def main() -> None:
         setting, agent = name.split(" | ")
         base = results[f"{setting} | baseline"]["total"]
         cells = [f"{r.get(p, 0.0):.1f}" for p in PARTS]
-        rate = r["flops"] / (r["total"] / 1000)
+        share = 100 * r["flops"] / (r["total"] / 1000) / peak
         print(f"| {setting} | {agent} | {r['total']:.1f} | {r['total'] / base:.1f} | "
-              + " | ".join(cells) + f" | {r['flops'] / 1e6:.1f} | {100 * rate / peak:.1f} |")  # fmt: skip
+              + " | ".join(cells) + f" | {r['flops'] / 1e6:.1f} | {share:.1f} |")  # fmt: skip
 
 
 if __name__ == "__main__":
