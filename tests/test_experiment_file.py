@@ -124,3 +124,14 @@ def test_every_experiment_the_docs_cite_is_a_file():
             cited |= set(group.split(","))
     missing = sorted(n for n in cited if not (ROOT / "experiments" / f"{n}.yaml").is_file())
     assert cited and not missing, missing
+
+
+def test_a_file_with_wrappers_makes_hashable_jobs_that_keep_them(tmp_path):
+    """A list field (``wrappers``) travels in a Job as a tuple and reaches the agent as a list."""
+    wrappers = ["gymnasium.wrappers:FlattenObservation"]
+    agent = resolved(agent_preset("fast", env="CartPole-v1", encoder="vector", wrappers=wrappers))
+    write_experiment(tmp_path / "w.yaml", Experiment("w", "", "augmented", agent))
+    experiment = load_experiment(tmp_path / "w.yaml")
+    jobs = experiment_jobs(experiment, tmp_path, ("hard",), (0, 1), (500,), None)
+    assert len({*jobs}) == 2
+    assert job_config(jobs[0], 500).wrappers == wrappers

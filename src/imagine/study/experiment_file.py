@@ -25,7 +25,7 @@ import yaml
 
 from imagine.config import AgentConfig, from_dict, load_yaml
 from imagine.errors import ConfigError
-from imagine.study.experiments import Job, load_evaluations
+from imagine.study.experiments import Job, frozen, load_evaluations
 from imagine.study.report import iqm_interval
 
 PER_RUN = ("task", "method", "seed", "episodes", "encoder", "vae_run")
@@ -46,8 +46,8 @@ class Experiment:
         """The settings that differ from AgentConfig's defaults (the paper's), as a Job holds
         them: the same agent, since a Job starts from those defaults (preset ``paper``)."""
         defaults = dataclasses.asdict(AgentConfig())
-        return tuple(
-            sorted((k, v) for k, v in self.agent.items() if k not in defaults or defaults[k] != v)
+        return frozen(
+            {k: v for k, v in self.agent.items() if k not in defaults or defaults[k] != v}
         )
 
 

@@ -165,8 +165,19 @@ def job_config(job: Job, budget: int):
 
     return agent_preset(
         job.preset, task=job.task, method=job.method, seed=job.seed, episodes=budget,
-        encoder=job.encoder, vae_run=job.vae_run, **for_method(dict(job.overrides), job.method),
+        encoder=job.encoder, vae_run=job.vae_run, **for_method(thawed(job.overrides), job.method),
     )  # fmt: skip
+
+
+def frozen(overrides: dict[str, Any]) -> tuple[tuple[str, Any], ...]:
+    """Agent config fields as a Job holds them: sorted pairs, lists (``wrappers``) as tuples,
+    so that a Job stays hashable."""
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in overrides.items()))
+
+
+def thawed(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
+    """A Job's overrides as AgentConfig takes them (the inverse of :func:`frozen`)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in overrides}
 
 
 def _run_budget(jobs: Sequence[Job], budget: int, device: str) -> list[str | None]:

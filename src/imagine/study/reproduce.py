@@ -35,6 +35,7 @@ from imagine.study.experiments import (
     LocalRunner,
     RayRunner,
     folder_lock,
+    frozen,
     load_evaluations,
     study_jobs,
 )
@@ -328,7 +329,7 @@ def _run_study(
         out, config.tasks, config.seeds, config.budgets, separate_runs=config.separate_runs,
         preset=config.preset,
         encoder="oracle" if config.oracle else "vae", vae_run=vae_run,
-        overrides=tuple(sorted(config.overrides.items())), plan_budget=max(config.budgets),
+        overrides=frozen(config.overrides), plan_budget=max(config.budgets),
         generalize_budget=5000 if 5000 in config.budgets else max(config.budgets),
     )  # fmt: skip
     # the long (augmented) runs first, so no worker is left with one at the end
