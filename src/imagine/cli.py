@@ -413,23 +413,6 @@ def gesture_puzzle_only(env: str, what: str) -> None:
         raise ImagineError(f"{what} is GesturePuzzle's (its rules and states); this run is {env}")
 
 
-UNBOUNDED_EPISODES = 1_000_000_000
-"""The episode budget of a run given only a step budget (``--steps``)."""
-
-
-def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
-    """For an environment other than GesturePuzzle with no encoder chosen: the one its
-    observation space calls for (:data:`imagine.learning.agent.ENCODER_OF_KIND`)."""
-    from imagine.envs.spec import gym_spec
-    from imagine.learning.agent import ENCODER_OF_KIND
-
-    env = values.get("env", ENV_ID)
-    if env == ENV_ID or "encoder" in values:
-        return values
-    kind = gym_spec(env, tuple(values.get("wrappers", []))).kind
-    return {**values, "encoder": ENCODER_OF_KIND[kind]}
-
-
 RECENT = 20
 """The training bar's return and success: the mean of each agent's last RECENT episodes."""
 
@@ -531,7 +514,12 @@ def train_agent(
     )
     from imagine.devices import resolve_device
     from imagine.errors import NumericalError
-    from imagine.learning.agent import check_folder, make_encoder
+    from imagine.learning.agent import (
+        UNBOUNDED_EPISODES,
+        check_folder,
+        make_encoder,
+        with_encoder_of_env,
+    )
     from imagine.learning.training import train_population
 
     overrides: dict = load_yaml(config_file) if config_file is not None else {}
@@ -765,8 +753,8 @@ def compare_command(
         str,
         typer.Option(
             metavar="M,M,...",
-            help="Which to train now (the table shows all under OUT): baseline, augmented, "
-            "sb3-dqn.",
+            help="Which to train now (the table shows all under OUT): baseline, control (the "
+            "baseline with the augmented agent's C updates per step), augmented, sb3-dqn.",
         ),
     ] = "baseline,augmented,sb3-dqn",
     preset: PresetOption = "fast",
@@ -778,8 +766,16 @@ def compare_command(
     Writes OUT/comparison.md (mean, std, IQM with 95% bootstrap CI), OUT/comparison.json and
     OUT/comparison.png (IQM against steps). SB3 (RL Zoo settings where tuned) needs the
     optional extra: pip install 'imagine[sb3]'; without it its row is skipped."""
-    from imagine.config import agent_preset, for_method, parse_assignments, parse_seeds
-    from imagine.study.compare import METHODS, report, sb3_available, train_ours, train_sb3
+    from imagine.config import agent_preset, parse_assignments, parse_seeds
+    from imagine.learning.agent import UNBOUNDED_EPISODES, with_encoder_of_env
+    from imagine.study.compare import (
+        METHODS,
+        arm_settings,
+        report,
+        sb3_available,
+        train_ours,
+        train_sb3,
+    )
 
     try:
         budgets = sorted({int(x) for x in steps.split(",")})
@@ -797,10 +793,9 @@ def compare_command(
         values["vae_run"] = str(vae)
     values = with_encoder_of_env(values)
     out.mkdir(parents=True, exist_ok=True)
-    for method in [m for m in ("baseline", "augmented") if m in wanted]:
-        config = agent_preset(preset, **for_method(values, method), method=method,
-                              steps=budgets[0])  # fmt: skip
-        train_ours(config, out, chosen, budgets, episodes, log=console.print)
+    for arm in [m for m in ("baseline", "control", "augmented") if m in wanted]:
+        config = agent_preset(preset, **arm_settings(values, arm), steps=budgets[0])
+        train_ours(config, out, chosen, budgets, episodes, log=console.print, arm=arm)
     if "sb3-dqn" in wanted and sb3_available():
         train_sb3(env, list(wrapper or []), out, chosen, budgets, episodes, log=console.print)
     elif "sb3-dqn" in wanted:
@@ -809,6 +804,51 @@ def compare_command(
     table, png = report(env, out)
     console.print(table)
     console.print(f"wrote {out / 'comparison.md'} and {png}")
+
+
+@app.command("bench")
+def bench_command(
+    suite: Annotated[Path, typer.Argument(metavar="SUITE", help="A suite file (suites/*.yaml).")],
+    out: Annotated[Path, typer.Argument(metavar="OUT", help="Folder of the runs (resumed).")],
+    envs: Annotated[
+        str | None,
+        typer.Option(metavar="ID,ID,...", help="Only these of the suite's environments."),
+    ] = None,
+    arms: Annotated[
+        str | None,
+        typer.Option(
+            metavar="A,A,...",
+            help="Only these arms: baseline, control, augmented, sb3-dqn (the report shows "
+            "all under OUT).",
+        ),
+    ] = None,
+    workers: Annotated[
+        int, typer.Option(min=1, help="(environment, arm) cells at once, one thread each.")
+    ] = 2,
+) -> None:
+    """The sample-efficiency suite: every arm on every environment, seed and budget.
+
+    Arms: the paper's baseline, the replay-ratio control (the baseline with as many C updates
+    per real step as the augmented agent), the augmented agent and SB3's DQN, all judged by
+    the same greedy test episodes. Writes OUT/SUITE.md (per environment mean, std and IQM
+    with 95% bootstrap CI; scores normalised by a random policy and the suite's reference;
+    where imagination hurts or pays) and each environment's table and figure; rerun to
+    resume."""
+    from imagine.study.suite import ARMS, check_suite, load_suite, run_suite
+
+    if not suite.is_file():
+        raise ImagineError(f"no suite file {suite}")
+    loaded = load_suite(suite)
+    names = [e.env for e in loaded.environments]
+    chosen_envs = None if envs is None else [e.strip() for e in envs.split(",") if e.strip()]
+    if chosen_envs is not None and (not chosen_envs or set(chosen_envs) - set(names)):
+        raise ImagineError(f"--envs takes the suite's {', '.join(names)}; got {envs!r}")
+    chosen_arms = None if arms is None else [a.strip() for a in arms.split(",") if a.strip()]
+    if chosen_arms is not None and (not chosen_arms or set(chosen_arms) - set(ARMS)):
+        raise ImagineError(f"--arms takes {', '.join(ARMS)}; got {arms!r}")
+    check_suite(loaded)
+    path = run_suite(loaded, out, chosen_envs, chosen_arms, workers, log=console.print)
+    console.print(f"wrote {path}")
 
 
 @app.command("plan")

@@ -59,6 +59,21 @@ def make_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
 ENCODER_OF_KIND = {"vector": "vector", "discrete": "onehot", "image": "vae"}
 """The encoder each kind of observation (:func:`imagine.envs.gym.observation_kind`) needs."""
 
+UNBOUNDED_EPISODES = 1_000_000_000
+"""The episode budget of a run given only a step budget (``--steps``)."""
+
+
+def with_encoder_of_env(values: dict[str, Any]) -> dict[str, Any]:
+    """For an environment other than GesturePuzzle with no encoder chosen: the one its
+    observation space calls for (:data:`ENCODER_OF_KIND`)."""
+    from imagine.envs.spec import gym_spec
+
+    env = values.get("env", ENV_ID)
+    if env == ENV_ID or "encoder" in values:
+        return values
+    kind = gym_spec(env, tuple(values.get("wrappers", []))).kind
+    return {**values, "encoder": ENCODER_OF_KIND[kind]}
+
 
 def generic_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
     """The encoder of a Gymnasium environment's observations (:mod:`imagine.models.encoders`)."""

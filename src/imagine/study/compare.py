@@ -23,14 +23,36 @@ from typing import Any
 import numpy as np
 
 from imagine.checkpoint import read_json, write_json
-from imagine.config import AgentConfig
+from imagine.config import AgentConfig, for_method
 from imagine.envs.spec import gym_spec
 from imagine.errors import NumericalError
 from imagine.learning.test_episodes import agent_policy, run_episodes
+from imagine.study.provenance import commit, provenance
 from imagine.study.report import iqm_interval
 
 EVAL_SEED = 1_000_000
-METHODS = ("baseline", "augmented", "sb3-dqn")
+METHODS = ("baseline", "control", "augmented", "sb3-dqn")
+"""Every arm a comparison can hold, in table order: the paper's baseline, the replay-ratio
+control (the baseline with the augmented agent's C and as many C updates per real step,
+:func:`control_overrides`), the augmented agent, SB3's DQN."""
+
+
+def control_overrides(values: dict[str, Any]) -> dict[str, Any]:
+    """The replay-ratio control's settings over a baseline's: from I_start on, C makes the
+    augmented agent's N_I extra updates per real step on real batches
+    (``real_in_place_of_imagined``), and with it the augmented agent's target network
+    (:data:`imagine.config.CONTROL_FROM_AUGMENTED`), so that the two differ only in where
+    their extra batches come from."""
+    return {**values, "method": "baseline", "real_in_place_of_imagined": True}
+
+
+def arm_settings(values: dict[str, Any], arm: str) -> dict[str, Any]:
+    """The AgentConfig fields of one of our arms (``baseline``, ``control``, ``augmented``)
+    over the settings ``values`` given to all of them (:func:`imagine.config.for_method`)."""
+    method = "augmented" if arm == "augmented" else "baseline"
+    mine = for_method(values, method) | {"method": method}
+    return control_overrides(mine) if arm == "control" else mine
+
 
 SB3_ZOO: dict[str, dict[str, Any]] = {
     "CartPole-v1": {
@@ -39,11 +61,18 @@ SB3_ZOO: dict[str, dict[str, Any]] = {
         "train_freq": 256, "gradient_steps": 128, "exploration_fraction": 0.16,
         "exploration_final_eps": 0.04, "policy_kwargs": {"net_arch": [256, 256]},
     },
+    "Acrobot-v1": {
+        "learning_rate": 6.3e-4, "batch_size": 128, "buffer_size": 50_000,
+        "learning_starts": 0, "gamma": 0.99, "target_update_interval": 250,
+        "train_freq": 4, "gradient_steps": -1, "exploration_fraction": 0.12,
+        "exploration_final_eps": 0.1, "policy_kwargs": {"net_arch": [256, 256]},
+    },
 }  # fmt: skip
 """RL Zoo's tuned DQN settings (rl-baselines3-zoo, hyperparams/dqn.yml) for the environments
-compared in docs/any-environment.md; the Zoo tunes CartPole-v1 for 5e4 steps, and the
-exploration schedule here keeps that horizon (``SB3_ZOO_STEPS``) whatever the budgets."""
-SB3_ZOO_STEPS = {"CartPole-v1": 50_000}
+compared in docs/any-environment.md and the suite (``imagine bench``); the Zoo tunes CartPole-v1
+for 5e4 steps and Acrobot-v1 for 1e5, and the exploration schedule here keeps that horizon
+(``SB3_ZOO_STEPS``) whatever the budgets."""
+SB3_ZOO_STEPS = {"CartPole-v1": 50_000, "Acrobot-v1": 100_000}
 
 
 def evaluation_path(folder: Path, steps: int) -> Path:
@@ -57,26 +86,29 @@ def train_ours(
     budgets: Sequence[int],
     episodes: int,
     log: Callable[[str], None] = print,
+    arm: str | None = None,
 ) -> None:
-    """One method's seeds, to each budget in turn, each evaluated there (resumable)."""
+    """One arm's seeds (default: the config's method), to each budget in turn, each evaluated
+    there (resumable); every evaluation records its config, the commit and V's hash."""
     from imagine.learning.training import train_population
 
+    arm = arm or config.method
     spec = gym_spec(config.env, tuple(config.wrappers))
-    folders = [out / config.method / f"seed-{s}" for s in seeds]
+    folders = [out / arm / f"seed-{s}" for s in seeds]
     for budget in sorted(budgets):
         todo = [i for i, f in enumerate(folders) if not evaluation_path(f, budget).is_file()]
         if not todo:
             continue
         configs = [dataclasses.replace(config, seed=seeds[i], steps=budget) for i in todo]
-        log(f"{config.method}: seeds {[seeds[i] for i in todo]} to {budget} steps")
+        log(f"{arm}: seeds {[seeds[i] for i in todo]} to {budget} steps")
         result = train_population(configs, [folders[i] for i in todo], threads=1)
         for i, agent in zip(todo, result.agents, strict=True):
             if agent is None:
                 raise NumericalError(result.failures[todo.index(i)])
             evaluation = run_episodes(spec, agent_policy(agent, episodes), episodes, EVAL_SEED)
             write_json(evaluation_path(folders[i], budget),
-                       {"method": config.method, "seed": seeds[i], "steps": budget,
-                        **evaluation})  # fmt: skip
+                       {"method": arm, "seed": seeds[i], "steps": budget, **evaluation,
+                        **provenance(configs[todo.index(i)])})  # fmt: skip
 
 
 def sb3_available() -> bool:
@@ -138,7 +170,7 @@ def sb3_evaluations(spec, folder: Path, seed: int, budgets: list[int], episodes:
                 write_json(evaluation_path(folder, steps),
                            {"method": "sb3-dqn", "seed": seed, "steps": steps,
                             "rl_zoo": spec.env_id in SB3_ZOO, "settings": settings,
-                            **evaluation})  # fmt: skip
+                            "commit": commit(), **evaluation})  # fmt: skip
             return steps < max(budgets)
 
     return Evaluate()

@@ -1,0 +1,120 @@
+"""`imagine bench`: the sample-efficiency suite (issue 57). Every arm of ours trains on a toy
+environment and seed to each budget, the replay-ratio control gets the augmented agent's C
+updates per step, the report judges imagination only from enough seeds, a rerun trains
+nothing, and a bad suite file is a one-line error."""
+
+import json
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+import toy_envs  # noqa: F401  (registers imagine-test/*)
+from imagine.cli import app
+from imagine.errors import ConfigError
+from imagine.study.suite import arm_config, load_suite, steps_to_match, verdicts
+
+LINE = "toy_envs:imagine-test/Line-v0"  # importable in a spawned worker too
+
+
+def suite_file(tmp_path, **overrides):
+    suite = {"seeds": "0,1", "episodes": 10, "arms": ["baseline", "control", "augmented"],
+             "environments": [{"env": LINE, "budgets": [30, 60], "reference": 1.0,
+                               "reference_source": "the goal's reward", "preset": "fast",
+                               "set": {"gamma": 0.9, "imagination_start": 2,
+                                       "imagination_depth": 2, "model_ensemble": 2}}]}  # fmt: skip
+    suite |= overrides
+    path = tmp_path / "suite.yaml"
+    path.write_text(yaml.safe_dump(suite))
+    return path
+
+
+def test_the_control_makes_as_many_c_updates_as_the_augmented_agent(tmp_path):
+    entry = load_suite(suite_file(tmp_path)).environments[0]
+    baseline, control, augmented = (arm_config(entry, a)
+                                    for a in ("baseline", "control", "augmented"))  # fmt: skip
+    assert (baseline.method, control.method, augmented.method) == ("baseline",) * 2 + (
+        "augmented",
+    )
+    assert control.real_in_place_of_imagined and not baseline.real_in_place_of_imagined
+    # as many C updates a step, from the same I_start, and the augmented agent's target net
+    assert control.n_imaginary_updates == augmented.n_imaginary_updates == 3
+    assert control.imagination_start == augmented.imagination_start == 2
+    assert control.target_update_period == augmented.target_update_period == 100
+    assert baseline.target_update_period != 100
+    assert augmented.model_ensemble == 2 and augmented.gamma == control.gamma == 0.9
+
+
+def test_bench_trains_every_arm_reports_and_resumes(tmp_path):
+    path = suite_file(tmp_path)
+    out = tmp_path / "out"
+    done = CliRunner().invoke(app, ["bench", str(path), str(out), "--workers", "2"])
+    assert done.exit_code == 0, done.output
+    folder = out / "toy_envs-imagine-test-Line-v0"
+    report = (out / "SUITE.md").read_text()
+    for steps in (30, 60):
+        for arm in ("baseline", "control", "augmented"):
+            assert f"| {steps} | {arm} | 2 |" in report
+    assert "no claim (2 seeds)" in report and "| yes |" not in report
+    assert (folder / "comparison.png").stat().st_size > 0
+    assert json.loads((folder / "random.json").read_text())["episodes"] == 10
+    record = json.loads((folder / "control" / "seed-1" / "evaluation-0000060.json").read_text())
+    assert record["method"] == "control" and record["config"]["real_in_place_of_imagined"]
+    assert record["commit"] and record["config"]["steps"] == 60
+    metrics = (folder / "control" / "seed-1" / "metrics.csv").read_text().splitlines()[0]
+    assert "losses/controller_real_extra" in metrics  # the control's extra real updates
+    before = record["commit"], (folder / "control" / "seed-1" / "evaluation-0000060.json")
+    mtime = before[1].stat().st_mtime_ns
+    again = CliRunner().invoke(app, ["bench", str(path), str(out), "--workers", "1"])
+    assert again.exit_code == 0 and before[1].stat().st_mtime_ns == mtime
+
+
+def test_verdicts_judge_against_the_stronger_baseline():
+    def row(method, steps, iqm, low, high, mean=None, n=5):
+        return {"method": method, "steps": steps, "n": n, "iqm": iqm, "iqm_low": low,
+                "iqm_high": high, "mean": iqm if mean is None else mean}  # fmt: skip
+
+    rows = [row("baseline", 10, 5, 4, 6), row("control", 10, 8, 7, 9),
+            row("augmented", 10, 3, 2, 3.5),  # below the control: hurts
+            row("baseline", 20, 5, 4, 6), row("control", 20, 6, 5, 7),
+            row("augmented", 20, 9, 8, 10),  # above both: pays
+            row("baseline", 40, 9, 8, 10), row("control", 40, 7, 6, 8),
+            row("augmented", 40, 9.5, 7.5, 11)]  # fmt: skip
+    got = {v["steps"]: v for v in verdicts(rows)}
+    assert (got[10]["stronger"], got[10]["hurts"], got[10]["pays"]) == ("control", True, False)
+    assert (got[20]["hurts"], got[20]["pays"]) == (False, True)
+    assert (got[40]["stronger"], got[40]["hurts"], got[40]["pays"]) == ("baseline", False, False)
+    assert all(v["judged"] for v in got.values())
+    # the stronger baseline's mean at 40 steps (9) is first reached at 20 steps
+    assert steps_to_match(rows) == 20
+    few = verdicts([{**r, "n": 2} for r in rows])
+    assert not any(v["judged"] for v in few)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [({"arms": ["baseline", "dreamer"]}, "arms are"),
+     ({"environments": []}, "non-empty list"),
+     ({"seed": 3}, "unknown key 'seed'"),
+     ({"environments": [{"env": LINE, "budgets": [10]}]}, "needs 'reference'"),
+     ({"environments": [{"env": LINE, "budgets": [0], "reference": 1,
+                         "reference_source": "x"}]}, "positive step counts")],
+)  # fmt: skip
+def test_a_bad_suite_file_is_a_one_line_error(tmp_path, change, message):
+    path = suite_file(tmp_path, **change)
+    with pytest.raises(ConfigError, match=message):
+        load_suite(path)
+    done = CliRunner().invoke(app, ["bench", str(path), str(tmp_path / "out")])
+    assert done.exit_code != 0 and message in str(done.exception)
+
+
+def test_the_shipped_suite_resolves():
+    """suites/sample-efficiency.yaml: every arm's config of every environment resolves."""
+    from pathlib import Path
+
+    from imagine.study.suite import check_suite
+
+    suite = load_suite(Path(__file__).parent.parent / "suites" / "sample-efficiency.yaml")
+    assert {"CartPole-v1", "Acrobot-v1"} <= {e.env for e in suite.environments}
+    assert suite.seeds == (0, 1, 2, 3, 4)
+    check_suite(suite)
