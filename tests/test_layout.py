@@ -24,6 +24,8 @@ GESTURE_PUZZLE_EXTRAS = {
     "imagine.envs.gesture_puzzle.evaluation": 3,
     "imagine.envs.gesture_puzzle.vision_report": 3,
     "imagine.envs.gesture_puzzle.extras": 3,
+    "imagine.envs.classic_control.true_model": 2,
+    "imagine.envs.classic_control.extras": 3,
 }
 """GesturePuzzle modules above the env layer: the probes of a trained V, M or C."""
 

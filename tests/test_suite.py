@@ -33,9 +33,7 @@ def test_the_control_makes_as_many_c_updates_as_the_augmented_agent(tmp_path):
     entry = load_suite(suite_file(tmp_path)).environments[0]
     baseline, control, augmented = (arm_config(entry, a)
                                     for a in ("baseline", "control", "augmented"))  # fmt: skip
-    assert (baseline.method, control.method, augmented.method) == ("baseline",) * 2 + (
-        "augmented",
-    )
+    assert (baseline.method, control.method, augmented.method) == ("baseline",) * 2 + ("augmented",)
     assert control.real_in_place_of_imagined and not baseline.real_in_place_of_imagined
     # as many C updates a step, from the same I_start, and the augmented agent's target net
     assert control.n_imaginary_updates == augmented.n_imaginary_updates == 3

@@ -22,6 +22,10 @@ if ENV_ID not in _gym.registry:
         max_episode_steps=None,
     )
 
-EXTRAS: dict[str, str] = {ENV_ID: "imagine.envs.gesture_puzzle.extras:EXTRAS"}
+EXTRAS: dict[str, str] = {
+    ENV_ID: "imagine.envs.gesture_puzzle.extras:EXTRAS",
+    "CartPole-v1": "imagine.envs.classic_control.extras:EXTRAS",
+    "Acrobot-v1": "imagine.envs.classic_control.extras:EXTRAS",
+}
 """Each environment's extras for Algorithm 1 (its encoder, a probe of M, its true dynamics), by
 entry point: :mod:`imagine.learning.extras`."""

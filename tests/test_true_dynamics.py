@@ -1,0 +1,52 @@
+"""The oracle M of the vector environments (issue 57): CartPole-v1's and Acrobot-v1's own
+dynamics, set to an imagined state and stepped, give the real environment's next state,
+reward and end; an augmented agent imagines with them in place of its learned M."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from imagine.config import agent_preset
+from imagine.envs.classic_control.true_model import TRUE_MODELS
+from imagine.errors import ConfigError
+from imagine.learning.training import train_population
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "Acrobot-v1"])
+def test_the_true_model_steps_as_the_environment_does(env_id):
+    model = TRUE_MODELS[env_id]()
+    env = gym.make(env_id)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=3)
+    states, actions, nexts, rewards, ends = [], [], [], [], []
+    while len(states) < 300:  # several episodes, their terminal steps included
+        a = int(rng.integers(env.action_space.n))
+        nxt, r, terminated, truncated, _ = env.step(a)
+        states.append(obs), actions.append(a), nexts.append(nxt)
+        rewards.append(r), ends.append(terminated)
+        obs = env.reset()[0] if terminated or truncated else nxt
+    z = torch.as_tensor(np.array(states), dtype=torch.float32)[None]  # (1, N, D)
+    prediction = model.predict(z, torch.as_tensor(actions)[None])
+    # the observation is float32, so the state set from it is within float32 rounding
+    np.testing.assert_allclose(prediction.next_z[0].numpy(), np.array(nexts), atol=1e-4)
+    truth = torch.as_tensor(np.array(nexts), dtype=torch.float32)[None]
+    assert model.is_terminal(truth)[0].tolist() == ends
+    assert model.predict_reward(truth)[0].tolist() == rewards
+    assert sum(ends) >= (3 if env_id == "CartPole-v1" else 0)
+
+
+def test_an_agent_imagines_with_cartpoles_own_dynamics(tmp_path):
+    config = agent_preset("smoke", env="CartPole-v1", encoder="vector", method="augmented",
+                          episodes=10**6, steps=300, imagination_start=3,
+                          imagination_model="true")  # fmt: skip
+    agent = train_population([config], [tmp_path / "run"], threads=1).agents[0]
+    assert agent.t == 300
+    rows = (tmp_path / "run" / "metrics.csv").read_text().splitlines()
+    imagined = rows[0].split(",").index("charts/imagined_transitions")
+    assert float(rows[-1].split(",")[imagined]) > 0
+    with pytest.raises(ConfigError, match="learned or true"):
+        train_population([agent_preset("smoke", env="CartPole-v1", encoder="vector",
+                                       method="augmented", steps=50, imagination_start=1,
+                                       imagination_model="true_end")],
+                         [tmp_path / "other"], threads=1)  # fmt: skip
