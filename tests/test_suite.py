@@ -59,6 +59,9 @@ def test_bench_trains_every_arm_reports_and_resumes(tmp_path):
     record = json.loads((folder / "control" / "seed-1" / "evaluation-0000060.json").read_text())
     assert record["method"] == "control" and record["config"]["real_in_place_of_imagined"]
     assert record["commit"] and record["config"]["steps"] == 60
+    assert record["nudge_epsilon"] == 0.001 and "nudged_mean_return" in record
+    assert 0.0 <= record["truncated"] <= 1.0
+    assert "mean at epsilon 0.001" in report
     metrics = (folder / "control" / "seed-1" / "metrics.csv").read_text().splitlines()[0]
     assert "losses/controller_real_extra" in metrics  # the control's extra real updates
     before = record["commit"], (folder / "control" / "seed-1" / "evaluation-0000060.json")
@@ -116,3 +119,27 @@ def test_the_shipped_suite_resolves():
     assert {"CartPole-v1", "Acrobot-v1"} <= {e.env for e in suite.environments}
     assert suite.seeds == (0, 1, 2, 3, 4)
     check_suite(suite)
+
+
+def test_epsilon_greedy_deviates_at_its_rate_and_passes_restarts_on():
+    import numpy as np
+
+    from imagine.learning.test_episodes import EpsilonGreedy
+
+    class Always:
+        restarted = None
+
+        def __call__(self, x, extra, copies):
+            return np.zeros(len(x), dtype=np.int64)
+
+        def restart(self, copies):
+            self.restarted = copies
+
+    inner = Always()
+    x = np.zeros((20_000, 2))
+    assert not EpsilonGreedy(inner, 4, 0.0, seed=0)(x, None, None).any()
+    nudged = EpsilonGreedy(inner, 4, 0.1, seed=0)(x, None, None)
+    # a random action replaces the policy's 10% of the time; 3 in 4 of those differ from it
+    assert abs((nudged != 0).mean() - 0.075) < 0.01
+    EpsilonGreedy(inner, 4, 0.1, seed=0).restart(np.array([3]))
+    assert inner.restarted.tolist() == [3]

@@ -35,6 +35,7 @@ def run_episodes(
     envs = spec.make_vector_env(copies)
     returns, lengths = np.zeros(episodes), np.zeros(episodes)  # by test episode
     successes = np.zeros(episodes, dtype=bool)
+    cut = np.zeros(episodes, dtype=bool)  # ended by the time limit, not by the environment
     reported = False
     episode_of = np.arange(copies)  # the test episode each copy runs (>= episodes: idle)
     seeds = [episode_seed(seed, int(k)) for k in episode_of]
@@ -60,6 +61,7 @@ def run_episodes(
         done = np.flatnonzero(ended & (episode_of < episodes))
         k = episode_of[done]
         returns[k], lengths[k], successes[k] = total[done], length[done], won[done]
+        cut[k] = truncated[done] & ~terminated[done]
         episode_of[done] = episode_of.max() + 1 + np.arange(len(done))
         obs, info = reset_ended(envs, ended, episode_of, seed)
         if hasattr(policy, "restart"):
@@ -70,7 +72,7 @@ def run_episodes(
     low, high = mean_interval(returns)
     out = {"mean_return": float(returns.mean()), "return_ci_low": low,
            "return_ci_high": high, "mean_length": float(lengths.mean()),
-           "episodes": episodes}  # fmt: skip
+           "truncated": float(cut.mean()), "episodes": episodes}  # fmt: skip
     if reported:
         n = int(successes.sum())
         s_low, s_high = wilson_interval(n, episodes)
@@ -107,6 +109,26 @@ def agent_policy(agent, episodes: int, copies: int = 64) -> GreedyPolicy:
 
     belief = belief_tracker(agent, min(copies, episodes))
     return GreedyPolicy(agent.controller, agent.encoder, belief)
+
+
+class EpsilonGreedy:
+    """``policy`` with a uniform random action in its place with probability ``epsilon`` at
+    each step (its own generator, seeded): how much a greedy result rests on never deviating.
+    In a deterministic environment a greedy C can circle through the same states until the
+    time limit, where one random action in a thousand breaks the circle."""
+
+    def __init__(self, policy: Policy, n_actions: int, epsilon: float, seed: int) -> None:
+        self.policy, self.n_actions, self.epsilon = policy, n_actions, epsilon
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, x, extra, copies: np.ndarray) -> np.ndarray:
+        actions = np.asarray(self.policy(x, extra, copies))
+        deviate = self.rng.random(len(actions)) < self.epsilon
+        return np.where(deviate, self.rng.integers(self.n_actions, size=len(actions)), actions)
+
+    def restart(self, copies: np.ndarray) -> None:
+        if hasattr(self.policy, "restart"):
+            self.policy.restart(copies)
 
 
 def random_policy(n_actions: int, seed: int) -> Policy:

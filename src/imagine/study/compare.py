@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,7 @@ from imagine.checkpoint import read_json, write_json
 from imagine.config import AgentConfig, for_method
 from imagine.envs.spec import gym_spec
 from imagine.errors import NumericalError
-from imagine.learning.test_episodes import agent_policy, run_episodes
+from imagine.learning.test_episodes import EpsilonGreedy, agent_policy, run_episodes
 from imagine.study.provenance import commit, provenance
 from imagine.study.report import iqm_interval
 
@@ -75,6 +76,22 @@ for 5e4 steps and Acrobot-v1 for 1e5, and the exploration schedule here keeps th
 SB3_ZOO_STEPS = {"CartPole-v1": 50_000, "Acrobot-v1": 100_000}
 
 
+NUDGE = 0.001
+"""The epsilon of the second test of every agent (:class:`EpsilonGreedy`): a greedy result
+that falls apart at one random action in a thousand is a policy circling, not one that
+fails."""
+
+
+def judged(spec, make_policy: Callable[[], Any], episodes: int) -> dict[str, Any]:
+    """The greedy test episodes of a policy (``make_policy()``: a fresh one), and the same
+    episodes with a random action at probability :data:`NUDGE` a step (``nudged_*``)."""
+    greedy = run_episodes(spec, make_policy(), episodes, EVAL_SEED)
+    nudged = run_episodes(spec, EpsilonGreedy(make_policy(), spec.n_actions, NUDGE, EVAL_SEED),
+                          episodes, EVAL_SEED)  # fmt: skip
+    return {**greedy, "nudge_epsilon": NUDGE, "nudged_mean_return": nudged["mean_return"],
+            "nudged_truncated": nudged["truncated"]}  # fmt: skip
+
+
 def evaluation_path(folder: Path, steps: int) -> Path:
     return folder / f"evaluation-{steps:07d}.json"
 
@@ -105,7 +122,7 @@ def train_ours(
         for i, agent in zip(todo, result.agents, strict=True):
             if agent is None:
                 raise NumericalError(result.failures[todo.index(i)])
-            evaluation = run_episodes(spec, agent_policy(agent, episodes), episodes, EVAL_SEED)
+            evaluation = judged(spec, partial(agent_policy, agent, episodes), episodes)
             write_json(evaluation_path(folders[i], budget),
                        {"method": arm, "seed": seeds[i], "steps": budget, **evaluation,
                         **provenance(configs[todo.index(i)])})  # fmt: skip
@@ -163,10 +180,11 @@ def sb3_evaluations(spec, folder: Path, seed: int, budgets: list[int], episodes:
             steps = self.num_timesteps
             if steps in budgets:
                 model = self.model
-                evaluation = run_episodes(
-                    spec, lambda x, extra, copies: model.predict(x, deterministic=True)[0],
-                    episodes, EVAL_SEED,
-                )  # fmt: skip
+
+                def greedy():
+                    return lambda x, extra, copies: model.predict(x, deterministic=True)[0]
+
+                evaluation = judged(spec, greedy, episodes)
                 write_json(evaluation_path(folder, steps),
                            {"method": "sb3-dqn", "seed": seed, "steps": steps,
                             "rl_zoo": spec.env_id in SB3_ZOO, "settings": settings,
@@ -184,28 +202,41 @@ def gather(out: Path) -> list[dict[str, Any]]:
 def summarize(evaluations: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (method, steps): n, mean return (std), IQM [95% bootstrap interval]."""
     groups: dict[tuple[str, int], list[float]] = {}
+    extra: dict[tuple[str, int], dict[str, list[float]]] = {}
     for e in evaluations:
-        groups.setdefault((e["method"], int(e["steps"])), []).append(e["mean_return"])
+        key = (e["method"], int(e["steps"]))
+        groups.setdefault(key, []).append(e["mean_return"])
+        for name in ("truncated", "nudged_mean_return"):
+            if name in e:
+                extra.setdefault(key, {}).setdefault(name, []).append(e[name])
     rows = []
     order = {m: i for i, m in enumerate(METHODS)}
     for (method, steps), values in sorted(groups.items(),
                                           key=lambda kv: (kv[0][1], order[kv[0][0]])):  # fmt: skip
         x = np.asarray(values)
         iqm, low, high = iqm_interval(x)
+        more = {name: float(np.mean(v)) for name, v in extra.get((method, steps), {}).items()
+                if len(v) == len(x)}  # fmt: skip
         rows.append({"method": method, "steps": steps, "n": len(x), "mean": float(x.mean()),
                      "std": float(x.std(ddof=1)) if len(x) > 1 else 0.0, "iqm": iqm,
-                     "iqm_low": low, "iqm_high": high})  # fmt: skip
+                     "iqm_low": low, "iqm_high": high, **more})  # fmt: skip
     return rows
 
 
 def markdown_table(env_id: str, rows: list[dict[str, Any]]) -> str:
-    lines = [f"Greedy mean return on {env_id} (per seed: mean of the test episodes)", "",
-             "| steps | method | seeds | mean (std) | IQM [95% CI] |",
-             "|---:|---|---:|---:|---:|"]  # fmt: skip
+    lines = [f"Greedy mean return on {env_id} (per seed: mean of the test episodes). "
+             "Time-limited: the share of greedy episodes ended by the time limit; at "
+             f"epsilon {NUDGE}: the mean return of the same episodes with a random action at "
+             "that probability a step (means over seeds).", "",
+             "| steps | method | seeds | mean (std) | IQM [95% CI] | time-limited | "
+             f"mean at epsilon {NUDGE} |",
+             "|---:|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     for r in rows:
+        cut = f"{100 * r['truncated']:.0f}%" if "truncated" in r else "-"
+        nudged = f"{r['nudged_mean_return']:.1f}" if "nudged_mean_return" in r else "-"
         lines.append(f"| {r['steps']} | {r['method']} | {r['n']} | {r['mean']:.1f} "
                      f"({r['std']:.1f}) | {r['iqm']:.1f} [{r['iqm_low']:.1f}, "
-                     f"{r['iqm_high']:.1f}] |")  # fmt: skip
+                     f"{r['iqm_high']:.1f}] | {cut} | {nudged} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
