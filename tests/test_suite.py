@@ -143,3 +143,35 @@ def test_epsilon_greedy_deviates_at_its_rate_and_passes_restarts_on():
     assert abs((nudged != 0).mean() - 0.075) < 0.01
     EpsilonGreedy(inner, 4, 0.1, seed=0).restart(np.array([3]))
     assert inner.restarted.tolist() == [3]
+
+
+def test_circling_finds_a_greedy_policy_that_goes_back_and_forth():
+    """A policy that alternates left and right on the toy line never reaches the goal: every
+    episode runs to the 20-step limit, circling with period 2; one that goes right ends."""
+    import numpy as np
+
+    import toy_envs
+    from imagine.envs.spec import gym_spec
+    from imagine.learning.test_episodes import circling
+
+    spec = gym_spec("imagine-test/Line-v0", ())
+
+    class BackAndForth:
+        def __init__(self):
+            self.t = 0
+
+        def __call__(self, x, extra, copies):
+            self.t += 1
+            return np.array([self.t % 2])  # right, left, right, ...
+
+        def restart(self, copies):
+            self.t = 0
+
+    loops = circling(spec, BackAndForth(), episodes=6, seed=0)
+    assert loops["truncated"] == 1.0 and loops["circling"] == 1.0
+    assert loops["median_period"] == 2
+    stay = circling(spec, lambda x, extra, copies: np.array([2]), episodes=3, seed=0)
+    assert stay["circling"] == 1.0 and stay["median_period"] == 1  # a fixed point
+    right = circling(spec, lambda x, extra, copies: np.array([1]), episodes=6, seed=0)
+    assert right["truncated"] == 0.0 and right["circling"] == 0.0
+    assert toy_envs.LENGTH == 5

@@ -718,7 +718,7 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     mean return (and success where the environment reports it) into RUN/evaluation.json."""
     from imagine.checkpoint import write_json
     from imagine.envs.spec import make_spec
-    from imagine.learning.test_episodes import agent_policy, run_episodes
+    from imagine.learning.test_episodes import agent_policy, circling, run_episodes
 
     spec = make_spec(agent.config)
     result = run_episodes(spec, agent_policy(agent, episodes), episodes, seed)
@@ -733,6 +733,15 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
     if "success" in result:
         print(f"success {100 * result['success']:.1f}% (95% CI [{100 * result['ci_low']:.1f}, "
               f"{100 * result['ci_high']:.1f}]%)")  # fmt: skip
+    if result["truncated"] > 0 and spec.kind == "vector":
+        loops = circling(spec, agent_policy(agent, 1, copies=1), min(episodes, 100), seed)
+        write_json(run / "evaluation.json", {"after_episodes": agent.episode,
+                                             "after_steps": agent.t, **result,
+                                             "circling": loops})  # fmt: skip
+        print(f"{100 * result['truncated']:.0f}% of the greedy episodes ran to the time limit; "
+              f"of those, {100 * loops['circling']:.0f}% circle (their last state comes back, "
+              f"median period {loops['median_period']:g} steps; "
+              f"{loops['episodes']} episodes)")  # fmt: skip
 
 
 @app.command("compare")

@@ -111,6 +111,50 @@ def agent_policy(agent, episodes: int, copies: int = 64) -> GreedyPolicy:
     return GreedyPolicy(agent.controller, agent.encoder, belief)
 
 
+@torch.no_grad()
+def circling(
+    spec: EnvSpec,
+    policy: Policy,
+    episodes: int,
+    seed: int,
+    window: int = 200,
+    tolerance: float = 0.05,
+) -> dict[str, float]:
+    """Whether a policy's time-limited episodes circle: in a deterministic environment a
+    greedy policy can fall into a cycle of states that never ends the episode. Each of
+    ``episodes`` test episodes (the seeds of :func:`run_episodes`) runs alone on a vector
+    observation; an episode that the time limit cuts *circles* when its last observation
+    comes back within ``tolerance`` of a typical step's length (the mean over its last
+    ``window`` steps) to one of its last ``window`` observations; its period is that lag (1:
+    a state it no longer leaves). Returns the share of
+    episodes cut, the share of those that circle, and the median period."""
+    cut, periods = 0, []
+    for k in range(episodes):
+        envs = spec.make_vector_env(1)
+        obs, info = envs.reset(seed=[episode_seed(seed, k)])
+        if hasattr(policy, "restart"):
+            policy.restart(np.array([0]))
+        seen = [np.asarray(obs[0], dtype=np.float64).ravel()]
+        while True:
+            x, extra = spec.encoder_input(obs, info)
+            obs, _, terminated, truncated, info = envs.step(policy(x, extra, np.array([0])))
+            seen.append(np.asarray(obs[0], dtype=np.float64).ravel())
+            if terminated[0] or truncated[0]:
+                break
+        envs.close()
+        if terminated[0]:
+            continue
+        cut += 1
+        path = np.array(seen[-(window + 1) :])
+        step = np.linalg.norm(np.diff(path, axis=0), axis=1).mean()
+        back = np.linalg.norm(path[:-1] - path[-1], axis=1)[::-1]  # lag 1, 2, ...
+        if len(back) and back.min() <= tolerance * step:  # a fixed point: 0 <= 0
+            periods.append(int(back.argmin()) + 1)
+    return {"episodes": episodes, "truncated": cut / episodes,
+            "circling": len(periods) / cut if cut else 0.0,
+            "median_period": float(np.median(periods)) if periods else float("nan")}  # fmt: skip
+
+
 class EpsilonGreedy:
     """``policy`` with a uniform random action in its place with probability ``epsilon`` at
     each step (its own generator, seeded): how much a greedy result rests on never deviating.
