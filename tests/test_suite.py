@@ -150,7 +150,6 @@ def test_circling_finds_a_greedy_policy_that_goes_back_and_forth():
     episode runs to the 20-step limit, circling with period 2; one that goes right ends."""
     import numpy as np
 
-    import toy_envs
     from imagine.envs.spec import gym_spec
     from imagine.learning.test_episodes import circling
 
@@ -174,4 +173,3 @@ def test_circling_finds_a_greedy_policy_that_goes_back_and_forth():
     assert stay["circling"] == 1.0 and stay["median_period"] == 1  # a fixed point
     right = circling(spec, lambda x, extra, copies: np.array([1]), episodes=6, seed=0)
     assert right["truncated"] == 0.0 and right["circling"] == 0.0
-    assert toy_envs.LENGTH == 5
