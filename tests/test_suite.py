@@ -46,6 +46,10 @@ def test_the_control_makes_as_many_c_updates_as_the_augmented_agent(tmp_path):
 def test_bench_trains_every_arm_reports_and_resumes(tmp_path):
     path = suite_file(tmp_path)
     out = tmp_path / "out"
+    partial = CliRunner().invoke(app, ["bench", str(path), str(out), "--up-to", "30"])
+    assert partial.exit_code == 0, partial.output
+    assert "| 30 | augmented | 2 |" in (out / "SUITE.md").read_text()
+    assert "| 60 |" not in (out / "SUITE.md").read_text()
     done = CliRunner().invoke(app, ["bench", str(path), str(out), "--workers", "2"])
     assert done.exit_code == 0, done.output
     folder = out / "toy_envs-imagine-test-Line-v0"

@@ -834,6 +834,14 @@ def bench_command(
     workers: Annotated[
         int, typer.Option(min=1, help="(environment, arm) cells at once, one thread each.")
     ] = 2,
+    up_to: Annotated[
+        int | None,
+        typer.Option(
+            metavar="STEPS",
+            min=1,
+            help="Only the budgets up to STEPS (a later run without it goes on).",
+        ),
+    ] = None,
 ) -> None:
     """The sample-efficiency suite: every arm on every environment, seed and budget.
 
@@ -856,7 +864,7 @@ def bench_command(
     if chosen_arms is not None and (not chosen_arms or set(chosen_arms) - set(ARMS)):
         raise ImagineError(f"--arms takes {', '.join(ARMS)}; got {arms!r}")
     check_suite(loaded)
-    path = run_suite(loaded, out, chosen_envs, chosen_arms, workers, log=console.print)
+    path = run_suite(loaded, out, chosen_envs, chosen_arms, workers, console.print, up_to)
     console.print(f"wrote {path}")
 
 

@@ -176,15 +176,22 @@ def run_suite(
     arms: Sequence[str] | None = None,
     workers: int = 1,
     log: Callable[[str], None] = print,
+    up_to: int | None = None,
 ) -> Path:
     """Train what is missing of every (environment, arm) asked for (all by default), each
-    cell one population of the suite's seeds on one thread, ``workers`` cells at once; then
-    write every environment's table and figure and OUT/SUITE.md; returns its path."""
+    cell one population of the suite's seeds on one thread, ``workers`` cells at once; with
+    ``up_to``, only the budgets up to that many steps (a partial run a later one extends);
+    then write every environment's table and figure and OUT/SUITE.md; returns its path."""
     out.mkdir(parents=True, exist_ok=True)
     cells = []
     for entry in suite.environments:
         if envs is not None and entry.env not in envs:
             continue
+        if up_to is not None:
+            entry = dataclasses.replace(entry, budgets=tuple(b for b in entry.budgets
+                                                             if b <= up_to))  # fmt: skip
+            if not entry.budgets:
+                continue
         (out / entry.slug).mkdir(exist_ok=True)
         random_score(entry, out / entry.slug, suite.episodes)
         for arm in suite.arms:
@@ -303,8 +310,13 @@ def steps_to_match(rows: list[dict[str, Any]]) -> int | None:
 
 
 def normalised_rows(entry: SuiteEnv, evaluations: list[dict[str, Any]], random: float):
-    """Per arm at the environment's largest budget: n, normalised IQM [95% CI] over seeds."""
-    last = max(entry.budgets)
+    """Per arm at the environment's largest budget that every arm evaluated so far has
+    reached: n, normalised IQM [95% CI] over seeds."""
+    reached: dict[str, set[int]] = {}
+    for e in evaluations:
+        reached.setdefault(e["method"], set()).add(int(e["steps"]))
+    common = set.intersection(*reached.values()) if reached else set()
+    last = max(common) if common else max(entry.budgets)
     rows = []
     for arm in ARMS:
         values = [normalised(e["mean_return"], random, entry.reference) for e in evaluations
@@ -323,6 +335,7 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
              "per agent and budget (the same for every arm). IQM with a 95% bootstrap "
              "interval over seeds.", ""]  # fmt: skip
     summary = ["## Normalised score at each environment's largest budget", "",
+               "(The largest that every arm has reached, in a partial run.)", "",
                "0: a uniform random policy on the same test episodes; 1: the reference.", "",
                "| environment | reference | random | arm | seeds | normalised IQM [95% CI] |",
                "| --- | ---: | ---: | --- | ---: | ---: |"]  # fmt: skip
