@@ -50,3 +50,24 @@ def test_an_agent_imagines_with_cartpoles_own_dynamics(tmp_path):
                                        method="augmented", steps=50, imagination_start=1,
                                        imagination_model="true_end")],
                          [tmp_path / "other"], threads=1)  # fmt: skip
+
+
+def test_the_probe_scores_m_on_held_out_transitions(tmp_path):
+    """A CartPole agent's metrics carry M's probe every accuracy_every episodes, each score a
+    share; an untrained M's next states are not close to the truth."""
+    from imagine.envs.classic_control.extras import model_probe
+    from imagine.metrics import read_metrics
+    from imagine.models.world_model import WorldModel
+
+    config = agent_preset("smoke", env="CartPole-v1", encoder="vector", method="augmented",
+                          episodes=10**6, steps=400, imagination_start=3,
+                          accuracy_every=5)  # fmt: skip
+    train_population([config], [tmp_path / "run"], threads=1)
+    rows = read_metrics(tmp_path / "run" / "metrics.csv")
+    logged = [r for r in rows if r.get("model/next_state_accuracy") not in (None, "")]
+    assert logged, "the probe is logged every accuracy_every episodes"
+    keys = ("next_state", "terminal", "nonterminal", "reward")
+    assert all(0.0 <= float(logged[-1][f"model/{k}_accuracy"]) <= 1.0 for k in keys)
+    torch.manual_seed(0)
+    untrained = model_probe(WorldModel(4, 2), None, config)
+    assert untrained["next_state"] < 0.5

@@ -109,3 +109,21 @@ class AcrobotTrueModel(ClassicTrueModel):
 
 TRUE_MODELS = {m.env_id: m for m in (CartPoleTrueModel, AcrobotTrueModel)}
 """Each environment's true model, by Gymnasium id."""
+
+
+def random_transitions(env_id: str, n: int = 2000, seed: int = 0) -> dict[str, np.ndarray]:
+    """``n`` real transitions of a uniform random policy (episodes from ``reset(seed)`` on,
+    their terminal steps included): state, action, next state, reward, terminated. Held out:
+    no agent trains on them."""
+    env = gym.make(env_id)
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list] = {k: [] for k in ("state", "action", "next", "reward", "done")}
+    obs, _ = env.reset(seed=seed)
+    while len(rows["state"]) < n:
+        a = int(rng.integers(env.action_space.n))
+        nxt, r, terminated, truncated, _ = env.step(a)
+        for key, value in zip(rows, (obs, a, nxt, r, terminated), strict=True):
+            rows[key].append(value)
+        obs = env.reset()[0] if terminated or truncated else nxt
+    env.close()
+    return {k: np.asarray(v) for k, v in rows.items()}
