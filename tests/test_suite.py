@@ -91,14 +91,26 @@ def test_verdicts_judge_against_the_stronger_baseline():
     assert (got[40]["stronger"], got[40]["hurts"], got[40]["pays"]) == ("baseline", False, False)
     assert all(v["judged"] for v in got.values())
     # the stronger baseline's mean at 40 steps (9) is first reached at 20 steps
-    assert steps_to_match(rows) == 20
+    assert steps_to_match(rows) == (40, 20)
+    assert steps_to_match([{**r, "n": 2} for r in rows]) == (None, None)  # too few seeds
+    # a budget one baseline has not reached is not the bar
+    assert steps_to_match([r for r in rows if (r["method"], r["steps"]) != ("control", 40)]) == (
+        20,
+        20,
+    )
     few = verdicts([{**r, "n": 2} for r in rows])
     assert not any(v["judged"] for v in few)
 
 
 @pytest.mark.parametrize(
     "change, message",
-    [({"arms": ["baseline", "dreamer"]}, "arms are"),
+    [({"arms": ["baseline", "dreamer"]}, "arms is a list"),
+     ({"arms": "baseline"}, "arms is a list"),
+     ({"arms": [{"a": 1}]}, "arms is a list"),
+     ({"episodes": True}, "episodes must be"),
+     ({"seeds": "0-x"}, "seeds is e.g."),
+     ({"environments": [{"env": LINE, "budgets": [10], "reference": 1,
+                         "reference_source": "x"}] * 2}, "share one folder"),
      ({"environments": []}, "non-empty list"),
      ({"seed": 3}, "unknown key 'seed'"),
      ({"environments": [{"env": LINE, "budgets": [10]}]}, "needs 'reference'"),
@@ -123,6 +135,20 @@ def test_the_shipped_suite_resolves():
     assert {"CartPole-v1", "Acrobot-v1"} <= {e.env for e in suite.environments}
     assert suite.seeds == (0, 1, 2, 3, 4)
     check_suite(suite)
+
+
+def test_seeds_as_a_list_and_a_changed_setting_refused_on_resume(tmp_path):
+    """seeds may be a YAML list; a rerun with another setting over finished evaluations is a
+    one-line error naming the field, not a reuse of results it did not ask for."""
+    assert load_suite(suite_file(tmp_path, seeds=[0, 2])).seeds == (0, 2)
+    out = tmp_path / "out"
+    path = suite_file(tmp_path, seeds="0", arms=["baseline"])
+    assert CliRunner().invoke(app, ["bench", str(path), str(out), "--up-to", "30"]).exit_code == 0
+    raw = yaml.safe_load(path.read_text())
+    raw["environments"][0]["set"]["gamma"] = 0.8
+    path.write_text(yaml.safe_dump(raw))
+    again = CliRunner().invoke(app, ["bench", str(path), str(out), "--up-to", "30"])
+    assert again.exit_code != 0 and "gamma 0.9 -> 0.8" in str(again.exception)
 
 
 def test_epsilon_greedy_deviates_at_its_rate_and_passes_restarts_on():

@@ -41,6 +41,9 @@ class Interrupted(ImagineError):
         super().__init__(message)
         self.signal_number = signal_number
 
+    def __reduce__(self):  # a worker process's stop reaches its parent whole
+        return (type(self), (str(self), self.signal_number))
+
 
 class FolderInUse(ImagineError):
     """Another live process is running jobs in this folder (its lock names the process)."""

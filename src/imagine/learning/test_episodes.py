@@ -148,8 +148,9 @@ def circling(
         path = np.array(seen[-(window + 1) :])
         step = np.linalg.norm(np.diff(path, axis=0), axis=1).mean()
         back = np.linalg.norm(path[:-1] - path[-1], axis=1)[::-1]  # lag 1, 2, ...
-        if len(back) and back.min() <= tolerance * step:  # a fixed point: 0 <= 0
-            periods.append(int(back.argmin()) + 1)
+        close = np.flatnonzero(back <= tolerance * step)  # a fixed point: 0 <= 0
+        if len(close):
+            periods.append(int(close[0]) + 1)  # the first lag, not a multiple of it
     return {"episodes": episodes, "truncated": cut / episodes,
             "circling": len(periods) / cut if cut else 0.0,
             "median_period": float(np.median(periods)) if periods else float("nan")}  # fmt: skip
@@ -168,7 +169,11 @@ class EpsilonGreedy:
     def __call__(self, x, extra, copies: np.ndarray) -> np.ndarray:
         actions = np.asarray(self.policy(x, extra, copies))
         deviate = self.rng.random(len(actions)) < self.epsilon
-        return np.where(deviate, self.rng.integers(self.n_actions, size=len(actions)), actions)
+        actions = np.where(deviate, self.rng.integers(self.n_actions, size=len(actions)), actions)
+        belief = getattr(self.policy, "belief", None)
+        if belief is not None:  # M's filter follows the action taken, not the greedy one
+            belief.acted(torch.as_tensor(actions), torch.as_tensor(copies))
+        return actions
 
     def restart(self, copies: np.ndarray) -> None:
         if hasattr(self.policy, "restart"):

@@ -16,6 +16,7 @@ a one-line message.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
@@ -23,10 +24,16 @@ from typing import Any
 
 import numpy as np
 
-from imagine.checkpoint import read_json, write_json
+from imagine.checkpoint import (
+    atomic_write_text,
+    changed_fields,
+    read_json,
+    save_figure,
+    write_json,
+)
 from imagine.config import AgentConfig, for_method
 from imagine.envs.spec import gym_spec
-from imagine.errors import NumericalError
+from imagine.errors import ConfigError, NumericalError
 from imagine.learning.test_episodes import EpsilonGreedy, agent_policy, run_episodes
 from imagine.study.provenance import commit, provenance
 from imagine.study.report import iqm_interval
@@ -92,6 +99,21 @@ def judged(spec, make_policy: Callable[[], Any], episodes: int) -> dict[str, Any
             "nudged_truncated": nudged["truncated"]}  # fmt: skip
 
 
+def check_evaluation(path: Path, config: AgentConfig, episodes: int) -> None:
+    """A one-line error if the evaluation at ``path`` was made by another config or on
+    another number of test episodes than those asked for now (a result is reused only for
+    what it measured)."""
+    saved = read_json(path, "evaluation")
+    asked = json.loads(json.dumps(dataclasses.asdict(config)))  # tuples as JSON lists
+    changed = changed_fields(saved.get("config", asked), asked)
+    if saved.get("episodes") != episodes:
+        changed = ", ".join(filter(None, [changed, f"test episodes {saved.get('episodes')} -> "
+                                                   f"{episodes}"]))  # fmt: skip
+    if changed:
+        raise ConfigError(f"{path} was made with another setting ({changed}): give another "
+                          "OUT or remove that arm's folder")  # fmt: skip
+
+
 def evaluation_path(folder: Path, steps: int) -> Path:
     return folder / f"evaluation-{steps:07d}.json"
 
@@ -114,6 +136,9 @@ def train_ours(
     folders = [out / arm / f"seed-{s}" for s in seeds]
     for budget in sorted(budgets):
         todo = [i for i, f in enumerate(folders) if not evaluation_path(f, budget).is_file()]
+        for i in set(range(len(folders))) - set(todo):
+            asked = dataclasses.replace(config, seed=seeds[i], steps=budget)
+            check_evaluation(evaluation_path(folders[i], budget), asked, episodes)
         if not todo:
             continue
         configs = [dataclasses.replace(config, seed=seeds[i], steps=budget) for i in todo]
@@ -144,14 +169,19 @@ def train_sb3(
     budgets: Sequence[int],
     episodes: int,
     log: Callable[[str], None] = print,
+    horizon: int | None = None,
 ) -> None:
-    """SB3's DQN per seed to the largest budget, evaluated as it passes each budget."""
+    """SB3's DQN per seed to the largest budget, evaluated as it passes each budget. Its
+    exploration schedule and default buffer follow ``horizon`` (default: the largest budget;
+    at least the Zoo's steps where the Zoo tunes the environment), so a partial run's first
+    budgets are those of the whole run. A run extended to more budgets trains from step 0
+    again (deterministic per seed, so it repeats the budgets it had)."""
     from stable_baselines3 import DQN
 
     from imagine.envs.gym import make_env
 
     spec = gym_spec(env_id, tuple(wrappers))
-    horizon = max(max(budgets), SB3_ZOO_STEPS.get(env_id, 0))
+    horizon = max(horizon or max(budgets), max(budgets), SB3_ZOO_STEPS.get(env_id, 0))
     # SB3's defaults otherwise, but a replay buffer no larger than the run (its default of 1e6
     # images would take 9 GB for 56 x 56 RGB observations)
     settings = SB3_ZOO.get(env_id, {"buffer_size": min(1_000_000, horizon)})
@@ -261,15 +291,16 @@ def figure(env_id: str, rows: list[dict[str, Any]], path: Path) -> Path:
     ax.set_title(env_id)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
 
-def report(env_id: str, out: Path) -> tuple[str, Path]:
-    """The table (also OUT/comparison.md and .json) and the figure (OUT/comparison.png)."""
-    rows = summarize(gather(out))
+def report(env_id: str, out: Path, seeds: Sequence[int] | None = None) -> tuple[str, Path]:
+    """The table (also OUT/comparison.md and .json) and the figure (OUT/comparison.png), of
+    the evaluations under OUT (of ``seeds`` only, if given)."""
+    rows = summarize([e for e in gather(out) if seeds is None or e["seed"] in seeds])
     table = markdown_table(env_id, rows)
-    (out / "comparison.md").write_text(table)
+    atomic_write_text(out / "comparison.md", table)
     write_json(out / "comparison.json", rows)
     return table, figure(env_id, rows, out / "comparison.png")

@@ -106,15 +106,29 @@ def load_suite(path: str | Path) -> Suite:
     entries = raw.get("environments")
     if not isinstance(entries, list) or not entries:
         raise ConfigError(f"{path}: 'environments' must be a non-empty list")
-    arms = tuple(raw.get("arms", ARMS))
-    if not arms or set(arms) - set(ARMS):
-        raise ConfigError(f"{path}: arms are {', '.join(ARMS)}; got {list(arms)}")
+    arms = raw.get("arms", list(ARMS))
+    if (not isinstance(arms, list) or not arms
+            or any(not isinstance(a, str) or a not in ARMS for a in arms)):  # fmt: skip
+        raise ConfigError(f"{path}: arms is a list of {', '.join(ARMS)}; got {arms!r}")
     episodes = raw.get("episodes", 100)
-    if not isinstance(episodes, int) or episodes < 1:
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"{path}: episodes must be a positive integer, got {episodes!r}")
-    return Suite(tuple(_suite_env(path, i, e) for i, e in enumerate(entries)),
-                 parse_seeds(str(raw.get("seeds", "0-4"))), episodes,
-                 tuple(a for a in ARMS if a in arms))  # fmt: skip
+    seeds = raw.get("seeds", "0-4")
+    if isinstance(seeds, list) and all(isinstance(x, int) and not isinstance(x, bool)
+                                       for x in seeds):  # fmt: skip
+        seeds = ",".join(map(str, seeds))
+    if isinstance(seeds, bool) or not isinstance(seeds, str | int):
+        raise ConfigError(f"{path}: seeds is e.g. 0-4 or [0, 1, 2], got {seeds!r}")
+    try:
+        chosen = parse_seeds(str(seeds))
+    except ConfigError:
+        raise ConfigError(f"{path}: seeds is e.g. 0-4 or [0, 1, 2], got {seeds!r}") from None
+    environments = tuple(_suite_env(path, i, e) for i, e in enumerate(entries))
+    slugs = [e.slug for e in environments]
+    if len(set(slugs)) < len(slugs):
+        twice = sorted({e.env for e in environments if slugs.count(e.slug) > 1})
+        raise ConfigError(f"{path}: environments {twice} would share one folder: name each once")
+    return Suite(environments, chosen, episodes, tuple(a for a in ARMS if a in arms))
 
 
 def _suite_env(path: str | Path, index: int, entry: Any) -> SuiteEnv:
@@ -187,11 +201,9 @@ def run_suite(
     for entry in suite.environments:
         if envs is not None and entry.env not in envs:
             continue
-        if up_to is not None:
-            entry = dataclasses.replace(entry, budgets=tuple(b for b in entry.budgets
-                                                             if b <= up_to))  # fmt: skip
-            if not entry.budgets:
-                continue
+        budgets = tuple(b for b in entry.budgets if up_to is None or b <= up_to)
+        if not budgets:
+            continue
         (out / entry.slug).mkdir(exist_ok=True)
         random_score(entry, out / entry.slug, suite.episodes)
         for arm in suite.arms:
@@ -201,30 +213,39 @@ def run_suite(
                 log("sb3-dqn skipped: stable-baselines3 is not installed "
                     "(pip install 'imagine[sb3]')")  # fmt: skip
                 continue
-            cells.append((entry, arm))
+            cells.append((entry, arm, budgets))
     if workers <= 1 or len(cells) <= 1:
-        for entry, arm in cells:
-            run_cell(suite, entry, arm, out, log)
+        for entry, arm, budgets in cells:
+            run_cell(suite, entry, arm, budgets, out, log)
     else:
         _run_cells(suite, cells, out, workers, log)
     return write_suite_report(suite, out)
 
 
 def run_cell(
-    suite: Suite, entry: SuiteEnv, arm: str, out: Path, log: Callable[[str], None] = print
+    suite: Suite,
+    entry: SuiteEnv,
+    arm: str,
+    budgets: Sequence[int],
+    out: Path,
+    log: Callable[[str], None] = print,
 ) -> None:
-    """One arm's seeds on one environment, to each of its budgets (resumable)."""
+    """One arm's seeds on one environment, to each of ``budgets`` (resumable), holding the
+    arm's folder lock: two ``imagine bench`` processes never train the same cell."""
     import torch
+
+    from imagine.study.experiments import folder_lock
 
     torch.set_num_threads(1)
     folder = out / entry.slug
     prefixed = lambda line: log(f"{entry.env} {line}")  # noqa: E731
-    if arm == "sb3-dqn":
-        train_sb3(entry.env, list(entry.wrappers), folder, suite.seeds, entry.budgets,
-                  suite.episodes, log=prefixed)  # fmt: skip
-    else:
-        train_ours(arm_config(entry, arm), folder, suite.seeds, entry.budgets, suite.episodes,
-                   log=prefixed, arm=arm)  # fmt: skip
+    with folder_lock(folder / arm):
+        if arm == "sb3-dqn":
+            train_sb3(entry.env, list(entry.wrappers), folder, suite.seeds, budgets,
+                      suite.episodes, log=prefixed, horizon=max(entry.budgets))  # fmt: skip
+        else:
+            train_ours(arm_config(entry, arm), folder, suite.seeds, budgets, suite.episodes,
+                       log=prefixed, arm=arm)  # fmt: skip
 
 
 def _run_cells(suite, cells, out: Path, workers: int, log: Callable[[str], None]) -> None:
@@ -236,8 +257,8 @@ def _run_cells(suite, cells, out: Path, workers: int, log: Callable[[str], None]
     failures = []
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        futures = {pool.submit(run_cell, suite, entry, arm, out): (entry.env, arm)
-                   for entry, arm in cells}  # fmt: skip
+        futures = {pool.submit(run_cell, suite, entry, arm, budgets, out): (entry.env, arm)
+                   for entry, arm, budgets in cells}  # fmt: skip
         for future in as_completed(futures):
             env, arm = futures[future]
             try:
@@ -266,8 +287,8 @@ def random_score(entry: SuiteEnv, folder: Path, episodes: int) -> float:
 
 
 def normalised(value: float, random: float, reference: float) -> float:
-    """A score on the scale random policy = 0, reference = 1."""
-    return (value - random) / (reference - random)
+    """A score on the scale random policy = 0, reference = 1 (NaN if the two are equal)."""
+    return (value - random) / (reference - random) if reference != random else float("nan")
 
 
 def verdicts(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -286,7 +307,8 @@ def verdicts(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({"steps": steps, "stronger": strongest["method"], "seeds": seeds,
                     "judged": seeds >= MIN_SEEDS,
                     "hurts": ours["iqm_high"] < strongest["iqm_low"],
-                    "pays": all(ours["iqm_low"] > b["iqm_high"] for b in bars),
+                    "pays": len(bars) == len(BASELINES)
+                            and all(ours["iqm_low"] > b["iqm_high"] for b in bars),
                     "complete": len(bars) == len(BASELINES)})  # fmt: skip
     return out
 
@@ -298,15 +320,21 @@ def verdict_text(verdict: dict[str, Any], key: str) -> str:
     return "yes" if verdict[key] else "no"
 
 
-def steps_to_match(rows: list[dict[str, Any]]) -> int | None:
-    """The fewest steps at which the augmented agent's mean reaches the stronger baseline's
-    mean at the largest budget (None: it does not, or a row is missing)."""
-    last = max((r["steps"] for r in rows), default=None)
-    bars = [r["mean"] for r in rows if r["steps"] == last and r["method"] in BASELINES]
-    if last is None or not bars:
-        return None
-    ours = sorted((r["steps"], r["mean"]) for r in rows if r["method"] == "augmented")
-    return next((steps for steps, mean in ours if mean >= max(bars)), None)
+def steps_to_match(rows: list[dict[str, Any]]) -> tuple[int | None, int | None]:
+    """The largest budget both baselines have reached, with at least :data:`MIN_SEEDS` seeds
+    in every row read, and the fewest steps at which the augmented agent's mean reaches the
+    stronger baseline's mean there (by IQM, as :func:`verdicts` picks it); None where there is
+    no such budget, or the augmented agent does not reach it."""
+    judged = [r for r in rows if r["n"] >= MIN_SEEDS]
+    reached = [{r["steps"] for r in judged if r["method"] == b} for b in BASELINES]
+    common = set.intersection(*reached)
+    if not common:
+        return None, None
+    last = max(common)
+    bar = max((r for r in judged if r["steps"] == last and r["method"] in BASELINES),
+              key=lambda r: r["iqm"])["mean"]  # fmt: skip
+    ours = sorted((r["steps"], r["mean"]) for r in judged if r["method"] == "augmented")
+    return last, next((steps for steps, mean in ours if mean >= bar), None)
 
 
 def normalised_rows(entry: SuiteEnv, evaluations: list[dict[str, Any]], random: float):
@@ -343,7 +371,7 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
               "`hurts`: the augmented agent's IQM interval lies wholly below the stronger "
               "baseline's; `pays`: wholly above both baselines'. Steps to match: the fewest "
               "steps at which the augmented mean reaches the stronger baseline's mean at the "
-              "largest budget.", "",
+              "largest budget both baselines reached.", "",
               "| environment | steps | stronger baseline | hurts | pays |",
               "| --- | ---: | --- | --- | --- |"]  # fmt: skip
     matched = []
@@ -351,11 +379,12 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
         folder = out / entry.slug
         if not folder.is_dir() or not gather(folder):
             continue
-        table, _ = report(entry.env, folder)
+        table, _ = report(entry.env, folder, suite.seeds)
         lines += [f"## {entry.env}", "", table, f"![{entry.env}]({entry.slug}/comparison.png)",
                   ""]  # fmt: skip
         random = random_score(entry, folder, suite.episodes)
-        for r in normalised_rows(entry, gather(folder), random):
+        mine = [e for e in gather(folder) if e["seed"] in suite.seeds]
+        for r in normalised_rows(entry, mine, random):
             summary.append(f"| {entry.env} | {entry.reference:g} ({entry.reference_source}) | "
                            f"{random:.1f} | {r['arm']} | {r['n']} | {r['iqm']:.2f} "
                            f"[{r['low']:.2f}, {r['high']:.2f}] |")  # fmt: skip
@@ -365,9 +394,13 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
             hurts, pays = (verdict_text(v, k) for k in ("hurts", "pays"))
             judged.append(f"| {entry.env} | {v['steps']} | {v['stronger']}{note} | {hurts} | "
                           f"{pays} |")  # fmt: skip
-        match = steps_to_match(rows)
-        reached = "not reached" if match is None else f"{match} steps"
-        matched.append(f"- {entry.env}: {reached} (largest budget {max(entry.budgets)})")
+        last, match = steps_to_match(rows)
+        if last is None:
+            matched.append(f"- {entry.env}: no budget that both baselines reached with "
+                           f"{MIN_SEEDS} seeds or more")  # fmt: skip
+        else:
+            reached = "not reached" if match is None else f"{match} steps"
+            matched.append(f"- {entry.env}: {reached} (the stronger baseline at {last})")
     seeds = len(suite.seeds)
     caveat = ([] if seeds >= MIN_SEEDS else
               [f"With {seeds} seed(s) the intervals say nothing: no claim is made from them.",

@@ -21,6 +21,11 @@ from imagine.learning.extras import EnvExtras
 
 def true_model(encoder, envs, config: AgentConfig) -> ClassicTrueModel:
     """The environment's own dynamics on its observations (the vector encoder's latents)."""
+    if config.wrappers:
+        raise ConfigError(
+            f"agent.imagination_model {config.imagination_model} on {config.env} steps the bare "
+            f"environment: it has no model of the wrappers {list(config.wrappers)}"
+        )
     if config.encoder != "vector":
         raise ConfigError(
             f"agent.imagination_model {config.imagination_model} on {config.env} steps the "
@@ -52,7 +57,12 @@ def model_probe(model, encoder, config: AgentConfig) -> dict[str, float]:
     - ``terminal`` / ``nonterminal``: d's accuracy at the true next state, over the terminal
       transitions and the others (terminal ones are rare in M's memory);
     - ``reward``: r within 0.5 of the true reward at the true next state.
+
+    Nothing with wrappers (the transitions are the bare environment's). A random policy never
+    ends Acrobot-v1 in 2000 steps, so its ``terminal`` is NaN there.
     """
+    if config.wrappers:
+        return {}
     device = next(model.parameters()).device
     rows = {
         k: v.to(device) for k, v in held_out(config.env.partition(":")[2] or config.env).items()
