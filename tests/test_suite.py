@@ -198,8 +198,9 @@ def test_circling_finds_a_greedy_policy_that_goes_back_and_forth():
 
     loops = circling(spec, BackAndForth(), episodes=6, seed=0)
     assert loops["truncated"] == 1.0 and loops["circling"] == 1.0
-    assert loops["median_period"] == 2
+    assert loops["median_period"] == 2 and loops["one_action"] == 0.5
     stay = circling(spec, lambda x, extra, copies: np.array([2]), episodes=3, seed=0)
     assert stay["circling"] == 1.0 and stay["median_period"] == 1  # a fixed point
+    assert stay["one_action"] == 1.0
     right = circling(spec, lambda x, extra, copies: np.array([1]), episodes=6, seed=0)
     assert right["truncated"] == 0.0 and right["circling"] == 0.0

@@ -126,25 +126,29 @@ def circling(
     observation; an episode that the time limit cuts *circles* when its last observation
     comes back within ``tolerance`` of a typical step's length (the mean over its last
     ``window`` steps) to one of its last ``window`` observations; its period is that lag (1:
-    a state it no longer leaves). Returns the share of
-    episodes cut, the share of those that circle, and the median period."""
-    cut, periods = 0, []
+    a state it no longer leaves). Returns the share of episodes cut, the share of those that
+    circle, the median period, and ``one_action``: the mean share of its most frequent action
+    in a cut episode (1.0: the policy does one thing whatever it sees)."""
+    cut, periods, one_action = 0, [], []
     for k in range(episodes):
         envs = spec.make_vector_env(1)
         obs, info = envs.reset(seed=[episode_seed(seed, k)])
         if hasattr(policy, "restart"):
             policy.restart(np.array([0]))
-        seen = [np.asarray(obs[0], dtype=np.float64).ravel()]
+        seen, taken = [np.asarray(obs[0], dtype=np.float64).ravel()], []
         while True:
             x, extra = spec.encoder_input(obs, info)
-            obs, _, terminated, truncated, info = envs.step(policy(x, extra, np.array([0])))
+            action = np.asarray(policy(x, extra, np.array([0])))
+            obs, _, terminated, truncated, info = envs.step(action)
             seen.append(np.asarray(obs[0], dtype=np.float64).ravel())
+            taken.append(int(action[0]))
             if terminated[0] or truncated[0]:
                 break
         envs.close()
         if terminated[0]:
             continue
         cut += 1
+        one_action.append(np.bincount(taken).max() / len(taken))
         path = np.array(seen[-(window + 1) :])
         step = np.linalg.norm(np.diff(path, axis=0), axis=1).mean()
         back = np.linalg.norm(path[:-1] - path[-1], axis=1)[::-1]  # lag 1, 2, ...
@@ -153,7 +157,8 @@ def circling(
             periods.append(int(close[0]) + 1)  # the first lag, not a multiple of it
     return {"episodes": episodes, "truncated": cut / episodes,
             "circling": len(periods) / cut if cut else 0.0,
-            "median_period": float(np.median(periods)) if periods else float("nan")}  # fmt: skip
+            "median_period": float(np.median(periods)) if periods else float("nan"),
+            "one_action": float(np.mean(one_action)) if one_action else float("nan")}  # fmt: skip
 
 
 class EpsilonGreedy:
