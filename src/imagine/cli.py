@@ -740,8 +740,8 @@ def evaluate_any(run: Path, agent, episodes: int, seed: int) -> None:
                                              "circling": loops})  # fmt: skip
         print(f"{100 * result['truncated']:.0f}% of the greedy episodes ran to the time limit; "
               f"of those, {100 * loops['circling']:.0f}% circle (their last state comes back, "
-              f"median period {loops['median_period']:g} steps), and "
-              f"{100 * loops['one_action']:.0f}% of their actions are each one's most frequent "
+              f"median period {loops['median_period']:g} steps), and an episode's most "
+              f"frequent action is {100 * loops['one_action']:.0f}% of its actions "
               f"({loops['episodes']} episodes)")  # fmt: skip
 
 
