@@ -87,3 +87,13 @@ def test_acrobots_end_and_reward_match_the_environments_own_rule():
     assert model.terminal(obs).tolist() == truth
     assert truth[0] and not truth[1] and len(set(truth)) == 2
     assert model.reward(obs).tolist() == [0.0 if t else -1.0 for t in truth]
+
+
+def test_set_reads_the_oracle_choice_true_as_text():
+    """`--set imagination_model=true` names the oracle (a str field keeps its text), where
+    YAML alone would read a boolean; other values are still read as YAML."""
+    from imagine.config import parse_assignments
+
+    got = parse_assignments(["imagination_model=true", "gamma=0.9", "vae_run=null"])
+    assert got == {"imagination_model": "true", "gamma": 0.9, "vae_run": None}
+    assert agent_preset("fast", **got).imagination_model == "true"

@@ -201,17 +201,28 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def parse_assignments(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings as a mapping, each value read as YAML (``0.5``, ``true``, ``null``)."""
+    """``KEY=VALUE`` strings as a mapping, each value read as YAML (``0.5``, ``true``, ``null``),
+    but as its text for a field that holds only strings (``imagination_model=true`` is the
+    choice ``"true"``, not a boolean)."""
     values: dict[str, Any] = {}
+    text_only = text_fields()
     for item in items:
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            values[key.strip()] = yaml.safe_load(text)
+            value = yaml.safe_load(text)
         except yaml.YAMLError:
             raise ConfigError(f"--set {key.strip()}: {text!r} is not a valid value") from None
+        if key.strip() in text_only and not isinstance(value, str):
+            value = text.strip()
+        values[key.strip()] = value
     return values
+
+
+def text_fields() -> set[str]:
+    """The AgentConfig fields typed ``str`` alone."""
+    return {name for name, hint in get_type_hints(AgentConfig).items() if hint is str}
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
