@@ -1,14 +1,17 @@
 """Where a real step's time goes, baseline against augmented, in one run (issue 56's cost model).
 
     .venv/bin/python benchmarks/step_cost.py [--agents 5] [--steps 100] [--vae runs/vae-fast]
-        [--cartpole-steps 300] [--set KEY=VALUE ...]
+        [--cartpole-steps 300] [--cartpole-agents 1] [--set KEY=VALUE ...]
 
 Two settings, each with the `fast` baseline, the `fast` augmented agent and (with ``--set``) a
 candidate augmented agent with those settings over `fast`:
 
 - GesturePuzzle `hard`: a population of ``--agents`` seeds stepping in lockstep, V encoding
   the images (``--vae``; without it the oracle encoder), imagination from the first step;
-- CartPole-v1: one seed, its 4-vector as it is, imagination from the first step.
+- CartPole-v1: ``--cartpole-agents`` seeds (one by default), its 4-vector as it is,
+  imagination from the first step.
+
+``--steps 0`` leaves out the GesturePuzzle rows, ``--cartpole-steps 0`` the CartPole ones.
 
 Each row is milliseconds per real step (one lockstep step of the population), after a
 warm-up, on one torch thread, split by the parts of Algorithm 1 (timers around the
@@ -103,19 +106,25 @@ def settings(args: argparse.Namespace) -> dict[str, tuple[list, Any, int]]:
     encoder = "vae" if args.vae else "oracle"
     rows = {}
     for name, method, extra in arms:
-        puzzle = [agent_preset("fast", encoder=encoder, vae_run=args.vae, task="hard", seed=seed,
-                               method=method, imagination_start=0, episodes=10**6, **extra)
-                  for seed in range(args.agents)]  # fmt: skip
-        rows[f"GesturePuzzle hard, {args.agents} seeds, {encoder} | {name}"] = (
-            puzzle,
-            make_encoder(puzzle[0]),
-            args.steps,
-        )
+        if args.steps:
+            puzzle = [agent_preset("fast", encoder=encoder, vae_run=args.vae, task="hard",
+                                   seed=seed, method=method, imagination_start=0,
+                                   episodes=10**6, **extra)
+                      for seed in range(args.agents)]  # fmt: skip
+            rows[f"GesturePuzzle hard, {args.agents} seeds, {encoder} | {name}"] = (
+                puzzle,
+                make_encoder(puzzle[0]),
+                args.steps,
+            )
         if args.cartpole_steps:
             pole = [agent_preset("fast", env="CartPole-v1", encoder="vector", method=method,
-                                 imagination_start=0, episodes=10**6, **extra)]  # fmt: skip
-            rows[f"CartPole-v1, 1 seed | {name}"] = (pole, make_encoder(pole[0]),
-                                                     args.cartpole_steps)  # fmt: skip
+                                 seed=seed, imagination_start=0, episodes=10**6, **extra)
+                    for seed in range(args.cartpole_agents)]  # fmt: skip
+            rows[f"CartPole-v1, {args.cartpole_agents} seed(s) | {name}"] = (
+                pole,
+                make_encoder(pole[0]),
+                args.cartpole_steps,
+            )
     return rows
 
 
@@ -124,6 +133,7 @@ def main() -> None:
     parser.add_argument("--agents", type=int, default=5)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--cartpole-steps", type=int, default=300, help="0: no CartPole rows")
+    parser.add_argument("--cartpole-agents", type=int, default=1)
     parser.add_argument("--vae", default=None, help="V run folder (default: the oracle)")
     parser.add_argument("--set", dest="set_", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()

@@ -204,3 +204,31 @@ def test_circling_finds_a_greedy_policy_that_goes_back_and_forth():
     assert stay["one_action"] == 1.0
     right = circling(spec, lambda x, extra, copies: np.array([1]), episodes=6, seed=0)
     assert right["truncated"] == 0.0 and right["circling"] == 0.0
+
+
+def test_an_augmented_agents_evaluation_carries_ms_probe_and_the_report_reads_it():
+    from imagine.config import agent_preset
+    from imagine.learning.agent import Agent, make_encoder
+    from imagine.learning.population import new_networks
+    from imagine.study.compare import probed
+    from imagine.study.suite import probe_rows
+
+    def agent(method):
+        config = agent_preset("fast", env="CartPole-v1", encoder="vector", method=method)
+        encoder = make_encoder(config)
+        controller, model = new_networks(config, encoder.latent_dim, 2)
+        return Agent(config, encoder, controller.eval(), model.eval(), 0, 0)
+
+    assert probed(agent("baseline")) == {}  # no M to probe
+    readings = probed(agent("augmented"))["model_probe"]
+    assert set(readings) == {"next_state", "terminal", "nonterminal", "reward"}
+    assert all(0.0 <= v <= 1.0 for v in readings.values())
+    assert readings["next_state"] < 0.5  # an untrained M does not know CartPole's dynamics
+    evaluations = [
+        {"method": "augmented", "steps": 10, "seed": 0,
+         "model_probe": {"next_state": 1.0, "terminal": 0.5, "nonterminal": 1.0, "reward": 1.0}},
+        {"method": "augmented", "steps": 10, "seed": 1,
+         "model_probe": {"next_state": 0.5, "terminal": None, "nonterminal": 0.9, "reward": 1.0}},
+        {"method": "control", "steps": 10, "seed": 0},
+    ]  # fmt: skip
+    assert probe_rows("E", evaluations) == ["| E | 10 | 2 | 75.0% | 50.0% | 95.0% | 100.0% |"]

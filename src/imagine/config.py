@@ -421,6 +421,9 @@ class AgentConfig:
     """Dropout in M's networks (the paper: 50% in all three)."""
     reward_dropout: float | None = None
     """Dropout in the r- and d-networks apart from the MDN's; None: ``dropout``."""
+    model_hidden: int = 256
+    """Units in each of the MDN's 3 hidden layers (paper: 256). A vector environment's few
+    state variables need fewer (docs/suite.md: M's cost on CartPole-v1 and Acrobot-v1)."""
     reward_hidden: int = 512
     """Units in each of the r-network's 3 hidden layers (paper: 512)."""
     terminal_hidden: int = 256
@@ -525,7 +528,7 @@ class AgentConfig:
                     "imagination_depth", "model_every", "imagination_every", "log_every",
                     "accuracy_every", "checkpoint_every",
                     "eval_episodes", "n_components", "model_ensemble", "controller_lr",
-                    "model_lr", "reward_hidden", "terminal_hidden",
+                    "model_lr", "model_hidden", "reward_hidden", "terminal_hidden",
                     "imagination_gate_scale", "imagination_gate_window")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:

@@ -212,8 +212,9 @@ def train(config: AgentConfig, encoder=None, record: Callable | None = None) -> 
     torch.manual_seed(c.seed)  # line 1: C's and M's initial weights
     controller = Controller(D, A)
     model = wm.WorldModel(D, A, n_components=c.n_components, dropout=c.dropout, ensemble=K,
-                          reward_hidden=c.reward_hidden, terminal_hidden=c.terminal_hidden,
-                          residual=c.model_residual, reward_dropout=c.reward_dropout)  # fmt: skip
+                          hidden=c.model_hidden, reward_hidden=c.reward_hidden,
+                          terminal_hidden=c.terminal_hidden, residual=c.model_residual,
+                          reward_dropout=c.reward_dropout)  # fmt: skip
     q, target = StackedMLP([controller.q]), StackedMLP([controller.q]).requires_grad_(False)
     C = DQN(q, target if c.target_update_period else None,
             torch.optim.Adam(q.parameters(), c.controller_lr, fused=True), A, c.gamma,

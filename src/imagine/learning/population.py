@@ -75,7 +75,7 @@ def new_networks(
     controller = Controller(latent_dim, n_actions)
     model = WorldModel(latent_dim, n_actions, n_components=config.n_components,
                        dropout=config.dropout,
-                       reward_hidden=config.reward_hidden,
+                       hidden=config.model_hidden, reward_hidden=config.reward_hidden,
                        terminal_hidden=config.terminal_hidden,
                        residual=config.model_residual,
                        reward_dropout=config.reward_dropout,

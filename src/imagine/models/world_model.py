@@ -233,13 +233,15 @@ class WorldModel(nn.Module):
         ensemble: int = 1,
         reward_dropout: float | None = None,
         terminal_hidden: int = 256,
+        hidden: int = 256,
     ) -> None:
         super().__init__()
         self.dropout = dropout
         self.reward_dropout = dropout if reward_dropout is None else reward_dropout
 
         def mdn() -> MDN:
-            return MDN(latent_dim, n_actions, n_components, dropout=dropout, residual=residual)
+            return MDN(latent_dim, n_actions, n_components, hidden, dropout=dropout,
+                       residual=residual)  # fmt: skip
 
         self.mdn = mdn()
         self.reward = RewardNet(latent_dim, hidden=reward_hidden, dropout=self.reward_dropout)

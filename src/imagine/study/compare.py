@@ -34,6 +34,7 @@ from imagine.checkpoint import (
 from imagine.config import AgentConfig, for_method
 from imagine.envs.spec import gym_spec
 from imagine.errors import ConfigError, NumericalError
+from imagine.learning.extras import extras_of
 from imagine.learning.test_episodes import EpsilonGreedy, agent_policy, run_episodes
 from imagine.study.provenance import commit, provenance
 from imagine.study.report import iqm_interval
@@ -150,7 +151,19 @@ def train_ours(
             evaluation = judged(spec, partial(agent_policy, agent, episodes), episodes)
             write_json(evaluation_path(folders[i], budget),
                        {"method": arm, "seed": seeds[i], "steps": budget, **evaluation,
-                        **provenance(configs[todo.index(i)])})  # fmt: skip
+                        **probed(agent), **provenance(configs[todo.index(i)])})  # fmt: skip
+
+
+def probed(agent) -> dict[str, Any]:
+    """``{"model_probe": {key: accuracy}}``: the environment's probe of the agent's learned M
+    on held-out real transitions (:class:`~imagine.learning.extras.EnvExtras`), where it has M
+    and the environment a probe; else nothing. An accuracy with nothing to measure (NaN: no
+    terminal transition among Acrobot-v1's) is null."""
+    probe = extras_of(agent.config.env).model_probe
+    if probe is None or not agent.config.trains_model:
+        return {}
+    readings = probe(agent.model, agent.encoder, agent.config)
+    return {"model_probe": {k: None if np.isnan(v) else v for k, v in readings.items()}}
 
 
 def sb3_available() -> bool:

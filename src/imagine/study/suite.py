@@ -356,6 +356,28 @@ def normalised_rows(entry: SuiteEnv, evaluations: list[dict[str, Any]], random: 
     return rows
 
 
+PROBE_KEYS = ("next_state", "terminal", "nonterminal", "reward")
+"""What the vector environments' probe of M reads (:func:`imagine.envs.classic_control.extras.
+model_probe`), in the report's column order."""
+
+
+def probe_rows(env: str, evaluations: list[dict[str, Any]]) -> list[str]:
+    """One table row per budget where augmented evaluations carry M's probe: each accuracy's
+    mean over those seeds (``-`` where none measured it)."""
+    by_steps: dict[int, list[dict[str, Any]]] = {}
+    for e in evaluations:
+        if e.get("method") == "augmented" and e.get("model_probe"):
+            by_steps.setdefault(e["steps"], []).append(e["model_probe"])
+    rows = []
+    for steps, probes in sorted(by_steps.items()):
+        cells = []
+        for key in PROBE_KEYS:
+            values = [p[key] for p in probes if p.get(key) is not None]
+            cells.append(f"{100 * np.mean(values):.1f}%" if values else "-")
+        rows.append(f"| {env} | {steps} | {len(probes)} | " + " | ".join(cells) + " |")
+    return rows
+
+
 def write_suite_report(suite: Suite, out: Path) -> Path:
     """Every environment's table and figure (``comparison.*`` in its folder) and OUT/SUITE.md."""
     lines = ["# The sample-efficiency suite", "",
@@ -374,6 +396,12 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
               "largest budget both baselines reached.", "",
               "| environment | steps | stronger baseline | hurts | pays |",
               "| --- | ---: | --- | --- | --- |"]  # fmt: skip
+    probed = ["## M on held-out real transitions", "",
+              "The augmented agent's M at each budget on 2000 transitions of a random policy "
+              "(means over seeds): next state within a tenth of the true step; d right on the "
+              "terminal transitions and on the others; r within 0.5.", "",
+              "| environment | steps | seeds | next state | d, terminal | d, nonterminal | r |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     matched = []
     for entry in suite.environments:
         folder = out / entry.slug
@@ -384,6 +412,7 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
                   ""]  # fmt: skip
         random = random_score(entry, folder, suite.episodes)
         mine = [e for e in gather(folder) if e["seed"] in suite.seeds]
+        probed += probe_rows(entry.env, mine)
         for r in normalised_rows(entry, mine, random):
             summary.append(f"| {entry.env} | {entry.reference:g} ({entry.reference_source}) | "
                            f"{random:.1f} | {r['arm']} | {r['n']} | {r['iqm']:.2f} "
@@ -406,6 +435,7 @@ def write_suite_report(suite: Suite, out: Path) -> Path:
               [f"With {seeds} seed(s) the intervals say nothing: no claim is made from them.",
                ""])  # fmt: skip
     path = out / "SUITE.md"
+    probe = [*probed, ""] if len(probed) > 6 else []
     atomic_write_text(path, "\n".join([*lines, *caveat, *summary, "", *judged, "",
-                                       "Steps to match:", *matched, ""]))  # fmt: skip
+                                       "Steps to match:", *matched, "", *probe]))  # fmt: skip
     return path
