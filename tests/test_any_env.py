@@ -23,6 +23,7 @@ from imagine.learning.training import train_population
 
 LINE = "imagine-test/Line-v0"
 LINE_DISCRETE = "imagine-test/LineDiscrete-v0"
+LINE_GRID = "imagine-test/LineGrid-v0"  # a 1 x 5 x 2 grid of booleans, as MinAtar's
 
 
 def toy_config(env=LINE, encoder="vector", **overrides):
@@ -41,7 +42,11 @@ def tensors_equal(a, b):
 
 @pytest.mark.parametrize(
     "env, encoder, method",
-    [(LINE, "vector", "augmented"), (LINE_DISCRETE, "onehot", "baseline")],
+    [
+        (LINE, "vector", "augmented"),
+        (LINE_DISCRETE, "onehot", "baseline"),
+        (LINE_GRID, "vector", "augmented"),
+    ],
 )
 def test_toy_env_agent_beats_random(tmp_path, env, encoder, method):
     config = toy_config(env, encoder, method=method)
@@ -54,7 +59,11 @@ def test_toy_env_agent_beats_random(tmp_path, env, encoder, method):
     assert trained["mean_return"] > random["mean_return"] + 1.0
     assert agent.controller.n_actions == 3
     loaded = load_agent(tmp_path / "run")  # Agent.act on raw observations
-    obs = np.array([[0.25, 1.0]], np.float32) if encoder == "vector" else np.array([1])
+    obs = {LINE: np.array([[0.25, 1.0]], np.float32), LINE_DISCRETE: np.array([1]),
+           LINE_GRID: np.zeros((1, 1, 5, 2), bool)}[env]  # fmt: skip
+    if env == LINE_GRID:  # at position 1, the goal at 4; flattened: 10 inputs
+        obs[0, 0, 1, 0] = obs[0, 0, 4, 1] = True
+        assert loaded.encoder.latent_dim == 10 and loaded.encoder.observation_shape == (1, 5, 2)
     assert loaded.act(obs[0]) == loaded.act(obs)[0] == 1  # right, towards the goal
     saved = loaded.save(tmp_path / "saved")  # Agent.save: networks only, loads back the same
     again = Agent.load(saved)

@@ -1,6 +1,7 @@
 """Toy Gymnasium environments made in the test suite, so that nothing GesturePuzzle-only
 creeps back into the core (issue 17): a walk to the right end of a line, seen as a vector, as a
-Discrete state, or as a small image. Importing this module registers them."""
+Discrete state, as a small image, or as a grid of booleans (MinAtar's kind). Importing this
+module registers them."""
 
 from __future__ import annotations
 
@@ -25,6 +26,8 @@ class Line(gym.Env):
             self.observation_space = gym.spaces.Discrete(LENGTH)
         elif observe == "image":
             self.observation_space = gym.spaces.Box(0, 255, (8, 8, 3), np.uint8)
+        elif observe == "grid":  # one row of cells, two channels: the agent and the goal
+            self.observation_space = gym.spaces.Box(0, 1, (1, LENGTH, 2), bool)
         else:
             self.observation_space = gym.spaces.Tuple((gym.spaces.Discrete(2),) * 2)
         self.position = 0
@@ -34,6 +37,10 @@ class Line(gym.Env):
             return np.array([self.position / (LENGTH - 1), 1.0], dtype=np.float32)
         if self.observe == "discrete":
             return self.position
+        if self.observe == "grid":
+            grid = np.zeros((1, LENGTH, 2), dtype=bool)
+            grid[0, self.position, 0] = grid[0, LENGTH - 1, 1] = True
+            return grid
         image = np.zeros((8, 8, 3), dtype=np.uint8)
         image[:, self.position] = 255
         return image
@@ -51,7 +58,8 @@ class Line(gym.Env):
 
 
 for _name, _observe in (("Line", "vector"), ("LineDiscrete", "discrete"),
-                        ("LineImage", "image"), ("LineTuple", "tuple")):  # fmt: skip
+                        ("LineImage", "image"), ("LineGrid", "grid"),
+                        ("LineTuple", "tuple")):  # fmt: skip
     if f"imagine-test/{_name}-v0" not in gym.registry:
         gym.register(f"imagine-test/{_name}-v0", entry_point=Line, max_episode_steps=20,
                      kwargs={"observe": _observe})  # fmt: skip

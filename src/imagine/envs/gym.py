@@ -3,12 +3,12 @@
 ``env_id`` is what ``gymnasium.make`` takes (``"CartPole-v1"``, or ``"module:Id"`` to import
 the module that registers it); ``wrappers`` are ``"module:Class"`` names applied in order to
 each copy. What the encoder reads depends on the observation space (:func:`observation_kind`):
-images (an H x W x C uint8 Box) go to V, vectors (a 1-D Box) pass as they are, a Discrete
-observation as its one-hot vector, a Dict with an ``"image"`` entry as that image; anything
-else is refused, naming the space. Success is ``info["is_success"]`` where the environment sets
-it. Each agent's episode e starts from ``reset(seed=...)`` with a seed drawn from (agent seed,
-e), so a run stopped between episodes resumes with the same episodes without saving the
-environment's state.
+images (an H x W x C uint8 Box) go to V, any other Box (a vector, a grid) passes as it is
+(flattened), a Discrete observation as its one-hot vector, a Dict with an ``"image"`` entry as
+that image; anything else is refused, naming the space. Success is ``info["is_success"]``
+where the environment sets it. Each agent's episode e starts from ``reset(seed=...)`` with a
+seed drawn from (agent seed, e), so a run stopped between episodes resumes with the same
+episodes without saving the environment's state.
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ OBSERVATION_KINDS = ("image", "vector", "discrete")
 
 
 def observation_kind(space: gym.Space) -> str:
-    """What an observation space holds for the encoder: ``image``, ``vector`` or
-    ``discrete``; a one-line error for any other space."""
+    """What an observation space holds for the encoder: ``image`` (an H x W x C uint8 Box),
+    ``vector`` (any other Box: a 1-D vector, or a grid such as MinAtar's 10 x 10 x n booleans,
+    which the vector encoder flattens) or ``discrete``; a one-line error for any other space."""
     if isinstance(space, gym.spaces.Dict) and "image" in space.spaces:
         space = space.spaces["image"]
         if not _is_image(space):
@@ -37,13 +38,13 @@ def observation_kind(space: gym.Space) -> str:
             )
     if _is_image(space):
         return "image"
-    if isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
-        return "vector"
+    if isinstance(space, gym.spaces.Box) and len(space.shape) >= 1:
+        return "vector"  # a grid of numbers (MinAtar's booleans) too: flattened
     if isinstance(space, gym.spaces.Discrete):
         return "discrete"
     raise ConfigError(
         f"observation space {space} is not supported: an image (H x W x C uint8 Box), a vector "
-        "(1-D Box), Discrete, or a Dict with an 'image' entry"
+        "or grid (any other Box), Discrete, or a Dict with an 'image' entry"
     )
 
 

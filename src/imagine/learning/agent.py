@@ -87,7 +87,7 @@ def generic_encoder(config: AgentConfig, device: str | torch.device = "cpu"):
     if needed == "vae":
         return image_encoder(config, device)
     space = spec.observation_space
-    return VectorEncoder(space.shape[0]) if needed == "vector" else OneHotEncoder(space.n)
+    return VectorEncoder(space.shape) if needed == "vector" else OneHotEncoder(space.n)
 
 
 def image_encoder(config: AgentConfig, device: str | torch.device = "cpu") -> ImageEncoder:

@@ -30,14 +30,14 @@ class Encoder(Protocol):
 
 
 class VectorEncoder:
-    """A 1-D Box observation as the latent itself (mu = obs, sigma = 0)."""
+    """A Box observation that is not an image as the latent itself (mu = obs, sigma = 0): a
+    1-D vector as it is, a grid (MinAtar's 10 x 10 x n booleans) flattened in C order."""
 
-    observation_ndim = 1
-
-    def __init__(self, size: int) -> None:
-        self.latent_dim = int(size)
-        self.observation_shape = (self.latent_dim,)
+    def __init__(self, shape: int | tuple[int, ...]) -> None:
+        self.observation_shape = (int(shape),) if isinstance(shape, int) else tuple(shape)
         """One observation's shape (``Agent.act`` checks what it is given against it)."""
+        self.observation_ndim = len(self.observation_shape)
+        self.latent_dim = int(np.prod(self.observation_shape))
 
     def encode(self, observations: Any, extra: Any = None) -> tuple[torch.Tensor, torch.Tensor]:
         mu = torch.as_tensor(np.asarray(observations, dtype=np.float32)).reshape(
