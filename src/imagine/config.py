@@ -272,8 +272,9 @@ class AgentConfig:
     """Seed of the networks, the environment and every random draw."""
     encoder: str = "vae"
     """vae: V's latent; oracle: a fixed random embedding of the true macrostate (studies M and C
-    apart from vision); vector: a 1-D Box observation as it is; onehot: a Discrete observation
-    as its one-hot vector (`imagine train --env` picks these from the observation space)."""
+    apart from vision); vector: any other Box observation as it is (a grid flattened); onehot:
+    a Discrete observation as its one-hot vector (`imagine train --env` picks these from the
+    observation space)."""
     vae_run: str | None = None
     """V run folder (from `imagine vae train`) for encoder=vae."""
     oracle_sigma: float = 0.05
