@@ -26,6 +26,8 @@ from imagine.errors import ConfigError
 PRESETS = ("paper", "fast", "smoke")
 GATES = ("none", "stop", "mask", "random")
 """The choices of ``AgentConfig.imagination_gate`` (:mod:`imagine.learning.gate`)."""
+TRUST_TESTS = ("action", "step")
+"""The choices of ``AgentConfig.imagination_trust_test`` (:mod:`imagine.learning.gate`)."""
 TASKS: tuple[str, ...] = ("original", "hard")
 """GesturePuzzle's tasks (:mod:`imagine.envs.gesture_puzzle.rules`): one dynamics, two goals."""
 IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_end", "true_state")
@@ -472,6 +474,21 @@ class AgentConfig:
     last judgment holds in between. Judging runs every member on all actions of the newest
     100 real transitions, more than a step's imagination costs; within 10 steps at most a
     tenth of those transitions are new."""
+    imagination_trust_test: str = "action"
+    """How an adaptive agent judges M's one-step predictions on its newest real transitions
+    (:mod:`imagine.learning.gate`): action (the member's mode for the action taken is the
+    nearest of all actions' modes to the observed next mu; needs no unit, for V's latents) or
+    step (the mode lies within imagination_trust_tolerance of the real step's length of the
+    observed next state; for state observations, where a step's size is a scale)."""
+    imagination_trust_tolerance: float = 0.1
+    """With imagination_trust_test step: a prediction is right when its distance to the
+    observed next state is below this share of ||next_mu - mu|| (> 0)."""
+    imagination_fallback: bool = False
+    """With imagination_adaptive: the imaginary C updates an agent does not make (M not
+    trusted, N_I' below N_I, nothing in M_I yet) are made on real batches of M_R instead, and
+    C's real targets are not expanded through M while M is not trusted. An agent whose M is
+    never trusted is then the replay-ratio control (the baseline with this C and as many
+    updates a step), not the baseline: imagination falls back to what replay gives."""
     imagination_start: int = 1000
     """I_start: first episode with imagined rollouts."""
     imagination_breadth: int = 3
@@ -593,6 +610,21 @@ class AgentConfig:
             raise ConfigError(
                 "agent.imagination_trust_floor must be in [0, 1], got "
                 f"{self.imagination_trust_floor}"
+            )
+        if self.imagination_trust_test not in TRUST_TESTS:
+            raise ConfigError(
+                f"agent.imagination_trust_test must be one of {', '.join(TRUST_TESTS)}, got "
+                f"{self.imagination_trust_test!r}"
+            )
+        if not self.imagination_trust_tolerance > 0:
+            raise ConfigError(
+                "agent.imagination_trust_tolerance must be > 0, got "
+                f"{self.imagination_trust_tolerance}"
+            )
+        if self.imagination_fallback and not self.imagination_adaptive:
+            raise ConfigError(
+                "agent.imagination_fallback makes the imaginary updates an adaptive agent skips "
+                "on real batches: set agent.imagination_adaptive=true"
             )
         if self.imagination_trust_every < 1:
             raise ConfigError(

@@ -43,6 +43,7 @@ from imagine.learning.gate import (
     TRUST_RECENT,
     ModelTrust,
     imaginary_updates,
+    one_step_close,
     one_step_right,
     support_distance,
 )
@@ -279,9 +280,7 @@ class Population:
         gens = [g if i in agents else None for i, g in enumerate(self.generators)]
         rows = torch.as_tensor(agents, device=self.device)
         c = self.config
-        expanding = [
-            i for i in agents if c.value_expansion and self.episode[i] >= c.imagination_start
-        ]
+        expanding = [i for i in agents if self._expands(i)]
         expanding_rows = torch.as_tensor(expanding, dtype=torch.int64, device=self.device)
         for _ in range(updates):
             b = self.real.sample(c.real_batch, gens)
@@ -303,6 +302,14 @@ class Population:
                                           target)  # fmt: skip
             self._record(key, loss, rows)
 
+    def _expands(self, agent: int) -> bool:
+        """Whether the agent's real targets are expanded through M now: with value expansion,
+        from I_start on, and with ``imagination_fallback`` only while M is trusted."""
+        c = self.config
+        if not c.value_expansion or self.episode[agent] < c.imagination_start:
+            return False
+        return not c.imagination_fallback or self.trust.trusted[agent]
+
     def _imagine(self, live: list[int], eps: list[float]) -> None:
         """Lines 16-20 for the agents past their I_start: imagine, store in M_I what the
         agent's gate keeps (all without one), make N_I updates of C on M_I (with
@@ -319,6 +326,7 @@ class Population:
             self._roll_out(rolling, eps)
         updates = self._imaginary_updates(imagining)
         gens = [g if i in imagining else None for i, g in enumerate(self.generators)]
+        made = dict.fromkeys(imagining, 0)
         for j in range(c.n_imaginary_updates):
             # agents with updates left and something in M_I (a gate may have kept nothing yet)
             learning = [i for i in imagining if updates[i] > j and self.imaginary.size[i] > 0]
@@ -332,6 +340,18 @@ class Population:
                 b["z"], b["action"], b["reward"], b["next_z"], b["done"], learning
             )
             self._record("losses/controller_imaginary", loss, rows)
+            for i in learning:
+                made[i] += 1
+        if c.imagination_fallback:
+            self._fall_back(made)
+
+    def _fall_back(self, made: dict[int, int]) -> None:
+        """``imagination_fallback``: each agent's imaginary updates not made this step, made on
+        real batches (agents with as many left learn together)."""
+        left = {i: self.config.n_imaginary_updates - n for i, n in made.items()}
+        for n in sorted(set(left.values()) - {0}):
+            agents = [i for i, m in left.items() if m == n]
+            self._learn_from_real(agents, n, "losses/controller_real_extra")
 
     def _roll_out(self, imagining: list[int], eps: list[float]) -> None:
         """Lines 16-18 for ``imagining``: I_B rollouts each, stored in M_I as far as the
@@ -395,7 +415,11 @@ class Population:
         due = [i for i in agents if self.trust.due(i, self.t[i])]
         if due:  # one batched judgment of the whole population, kept for the agents due
             recent, held = self.real.newest_each(TRUST_RECENT)
-            right = one_step_right(self.model, recent, held, self.n_actions).tolist()
+            if c.imagination_trust_test == "step":
+                right = one_step_close(self.model, recent, held,
+                                       c.imagination_trust_tolerance).tolist()  # fmt: skip
+            else:
+                right = one_step_right(self.model, recent, held, self.n_actions).tolist()
             for i in due:
                 self.trust.judge(i, self.t[i], right[i])
         return {
