@@ -71,10 +71,11 @@ def test_an_untrusted_agent_with_the_fallback_makes_the_controls_updates(monkeyp
     p = population(0, imagination_adaptive=True, imagination_fallback=True,
                    imagination_trust_test="step", imagination_trust_floor=1.0,
                    n_imaginary_updates=3, value_expansion=2, target_update_period=10)  # fmt: skip
-    made = counted(p)
+    made, ended = counted(p), []
     for _ in range(20):
         made.append({})
-        p.step()
+        ended += [stats for _, stats in p.step()]
+    assert ended and all(stats["charts/model_trusted"] == 0.0 for stats in ended)
     assert not p.trust.trusted[0]  # an M learning from 20 steps is not right on all of them
     assert p.imaginary.added[0] > 0  # it imagines, but C learns from real batches instead
     assert made == [{"losses/controller_real": 1, "losses/controller_real_extra": 3}] * 20
@@ -86,10 +87,11 @@ def test_a_trusted_agent_with_the_fallback_tops_up_its_gated_updates_with_real_o
                    imagination_adaptive=True, imagination_fallback=True,
                    imagination_trust_test="step", imagination_trust_floor=0.0,
                    n_imaginary_updates=4)  # fmt: skip
-    made = counted(p)
+    made, ended = counted(p), []
     for _ in range(30):
         made.append({})
-        p.step()
+        ended += [stats for _, stats in p.step()]
+    assert ended and all(stats["charts/model_trusted"] == 1.0 for stats in ended)
     imagined = [m.get("losses/controller_imaginary", 0) for m in made]
     extra = [m.get("losses/controller_real_extra", 0) for m in made]
     assert all(i + e == 4 for i, e in zip(imagined, extra, strict=True))  # N_I every step

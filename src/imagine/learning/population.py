@@ -422,6 +422,8 @@ class Population:
                 right = one_step_right(self.model, recent, held, self.n_actions).tolist()
             for i in due:
                 self.trust.judge(i, self.t[i], right[i])
+        for i in agents:
+            self._episode[i].add_trust(self.trust.trusted[i])
         return {
             i: imaginary_updates(c.n_imaginary_updates, self.trust.acceptance[i],
                                  self.trust.trusted[i])
@@ -561,6 +563,10 @@ class EpisodeTotals:
     """Sum of M's members' disagreement over the imagined transitions (None: one member)."""
     accepted: int | None = None
     """Imagined transitions a gate kept (None: no gate)."""
+    trusted: int = 0
+    """Imagination steps with M trusted (``imagination_adaptive``)."""
+    judged: int = 0
+    """Imagination steps of an adaptive agent (0: not adaptive)."""
     eps: float = 0.0
 
     def add(self, reward: float, eps: float, success: bool | None) -> None:
@@ -576,6 +582,10 @@ class EpisodeTotals:
     def add_accepted(self, n: int) -> None:
         self.accepted = (self.accepted or 0) + n
 
+    def add_trust(self, trusted: bool) -> None:
+        self.trusted += int(trusted)
+        self.judged += 1
+
     def stats(self) -> dict[str, float]:
         out = {"charts/return": self.total}
         if self.success is not None:  # the environment says when a goal is reached
@@ -586,4 +596,6 @@ class EpisodeTotals:
             out["charts/imagined_disagreement"] = self.disagreement / self.imagined
         if self.accepted is not None and self.imagined:
             out["charts/imagined_accepted"] = self.accepted / self.imagined
+        if self.judged:
+            out["charts/model_trusted"] = self.trusted / self.judged
         return out
