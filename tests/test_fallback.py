@@ -77,7 +77,7 @@ def test_an_untrusted_agent_with_the_fallback_makes_the_controls_updates(monkeyp
         ended += [stats for _, stats in p.step()]
     assert ended and all(stats["charts/model_trusted"] == 0.0 for stats in ended)
     assert not p.trust.trusted[0]  # an M learning from 20 steps is not right on all of them
-    assert p.imaginary.added[0] > 0  # it imagines, but C learns from real batches instead
+    assert p.imaginary.added[0] == 0  # an untrusted M imagines nothing: C learns from replay
     assert made == [{"losses/controller_real": 1, "losses/controller_real_extra": 3}] * 20
     assert not expansions  # and its real targets are not expanded through an untrusted M
 
@@ -111,3 +111,32 @@ def test_the_fallback_and_the_step_test_refuse_bad_settings_in_one_line():
         with pytest.raises(ConfigError) as error:
             agent_preset("fast", **overrides)
         assert str(error.value) == message
+
+
+def test_an_agent_switched_to_the_papers_rollouts_counts_as_trusted_by_the_fallback(monkeypatch):
+    expansions = []
+    original = imagine.learning.population.expanded_target
+
+    def counting(*args, **kwargs):
+        expansions.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(imagine.learning.population, "expanded_target", counting)
+    # every action's backups in episode 0, the paper's policy rollouts from episode 1 on,
+    # where M is not judged (a floor of 1.0 would never pass it)
+    p = population(0, imagination_adaptive=True, imagination_fallback=True,
+                   imagination_trust_test="step", imagination_trust_floor=1.0,
+                   imagination_actions="all", imagination_actions_until=1,
+                   n_imaginary_updates=3, value_expansion=2)  # fmt: skip
+    while p.episode[0] < 1:
+        p.step()
+    assert p.imaginary.added[0] == 0 and not p.trust.trusted[0]  # untrusted in episode 0
+    expansions.clear()
+    made = counted(p)
+    for _ in range(10):
+        made.append({})
+        p.step()
+    assert p.imaginary.added[0] > 0  # it imagines, ungated
+    assert expansions  # and expands its real targets through M
+    assert all(m.get("losses/controller_imaginary") == 3 for m in made)  # N_I on M_I
+    assert not any("losses/controller_real_extra" in m for m in made)  # none on replay

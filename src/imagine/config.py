@@ -485,10 +485,11 @@ class AgentConfig:
     observed next state is below this share of ||next_mu - mu|| (> 0)."""
     imagination_fallback: bool = False
     """With imagination_adaptive: the imaginary C updates an agent does not make (M not
-    trusted, N_I' below N_I, nothing in M_I yet) are made on real batches of M_R instead, and
-    C's real targets are not expanded through M while M is not trusted. An agent whose M is
-    never trusted is then the replay-ratio control (the baseline with this C and as many
-    updates a step), not the baseline: imagination falls back to what replay gives."""
+    trusted, N_I' below N_I, nothing in M_I yet) are made on real batches of M_R instead;
+    while M is not trusted, C's real targets are not expanded through M and no rollouts are
+    imagined (an agent switched by imagination_actions_until counts as trusted). An agent
+    whose M is never trusted is then the replay-ratio control (the baseline with this C and
+    as many updates a step), not the baseline: imagination falls back to what replay gives."""
     imagination_start: int = 1000
     """I_start: first episode with imagined rollouts."""
     imagination_breadth: int = 3

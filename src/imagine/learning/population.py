@@ -308,7 +308,18 @@ class Population:
         c = self.config
         if not c.value_expansion or self.episode[agent] < c.imagination_start:
             return False
-        return not c.imagination_fallback or self.trust.trusted[agent]
+        return not c.imagination_fallback or self._trusted(agent)
+
+    def _switched(self, agent: int) -> bool:
+        """Whether ``imagination_actions_until`` has switched the agent to the paper's
+        rollouts (ungated, M never judged)."""
+        c = self.config
+        return actions_at(c, self.episode[agent]) != c.imagination_actions
+
+    def _trusted(self, agent: int) -> bool:
+        """Whether M counts as trusted for the agent: its trust test's last judgment, or
+        switched to the paper's rollouts, which trust M without judging it."""
+        return self.trust.trusted[agent] or self._switched(agent)
 
     def _imagine(self, live: list[int], eps: list[float]) -> None:
         """Lines 16-20 for the agents past their I_start: imagine, store in M_I what the
@@ -321,7 +332,9 @@ class Population:
         imagining = [i for i in live if self.episode[i] >= c.imagination_start]
         if not imagining:
             return
-        rolling = [i for i in imagining if self.t[i] % c.imagination_every == 0]
+        # with the fallback an untrusted M's rollouts would teach C nothing: none are made
+        rolling = [i for i in imagining if self.t[i] % c.imagination_every == 0
+                   and (not c.imagination_fallback or self._trusted(i))]  # fmt: skip
         if rolling:
             self._roll_out(rolling, eps)
         updates = self._imaginary_updates(imagining)
@@ -410,7 +423,7 @@ class Population:
         c = self.config
         if not c.imagination_adaptive:
             return {i: c.n_imaginary_updates for i in agents}
-        switched = [i for i in agents if actions_at(c, self.episode[i]) != c.imagination_actions]
+        switched = [i for i in agents if self._switched(i)]
         agents = [i for i in agents if i not in switched]
         due = [i for i in agents if self.trust.due(i, self.t[i])]
         if due:  # one batched judgment of the whole population, kept for the agents due
