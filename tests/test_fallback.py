@@ -140,3 +140,18 @@ def test_an_agent_switched_to_the_papers_rollouts_counts_as_trusted_by_the_fallb
     assert expansions  # and expands its real targets through M
     assert all(m.get("losses/controller_imaginary") == 3 for m in made)  # N_I on M_I
     assert not any("losses/controller_real_extra" in m for m in made)  # none on replay
+
+
+def test_the_fast_augmented_agent_on_state_vectors_has_m_without_dropout_and_the_fallback():
+    on_vectors = agent_preset("fast", env="CartPole-v1", encoder="vector")
+    assert on_vectors.dropout == 0.0
+    assert on_vectors.imagination_fallback and on_vectors.imagination_adaptive
+    assert on_vectors.imagination_trust_test == "step"
+    on_latents = agent_preset("fast")  # GesturePuzzle through V keeps the preset's M
+    assert on_latents.dropout == 0.2 and not on_latents.imagination_fallback
+    # the baseline has no M to judge, the paper's preset stays the paper's, a user's choice wins
+    assert not agent_preset("fast", method="baseline", encoder="vector").imagination_fallback
+    assert agent_preset("paper", env="CartPole-v1", encoder="vector").dropout == 0.5
+    chosen = agent_preset("fast", env="CartPole-v1", encoder="vector", dropout=0.3,
+                          imagination_fallback=False)  # fmt: skip
+    assert chosen.dropout == 0.3 and not chosen.imagination_fallback

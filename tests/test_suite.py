@@ -3,6 +3,7 @@ environment and seed to each budget, the replay-ratio control gets the augmented
 updates per step, the report judges imagination only from enough seeds, a rerun trains
 nothing, and a bad suite file is a one-line error."""
 
+import dataclasses
 import json
 
 import pytest
@@ -149,6 +150,24 @@ def test_seeds_as_a_list_and_a_changed_setting_refused_on_resume(tmp_path):
     path.write_text(yaml.safe_dump(raw))
     again = CliRunner().invoke(app, ["bench", str(path), str(out), "--up-to", "30"])
     assert again.exit_code != 0 and "gamma 0.9 -> 0.8" in str(again.exception)
+
+
+def test_a_record_older_than_a_field_is_reused_only_where_the_field_keeps_its_default(tmp_path):
+    from imagine.checkpoint import write_json
+    from imagine.config import agent_preset
+    from imagine.study.compare import check_evaluation
+
+    config = agent_preset("fast", method="baseline", env="CartPole-v1", encoder="vector")
+    recorded = json.loads(json.dumps(dataclasses.asdict(config)))
+    del recorded["imagination_trust_tolerance"]  # a field added after the record was made
+    path = tmp_path / "evaluation-0000010.json"
+    write_json(path, {"config": recorded, "episodes": 100})
+    check_evaluation(path, config, 100)  # the default now is what the record measured
+    other = dataclasses.replace(config, imagination_trust_tolerance=0.3)
+    with pytest.raises(ConfigError, match=r"imagination_trust_tolerance 0.1 -> 0.3"):
+        check_evaluation(path, other, 100)
+    with pytest.raises(ConfigError, match=r"gamma 0.99 -> 0.8"):
+        check_evaluation(path, dataclasses.replace(config, gamma=0.8), 100)
 
 
 def test_epsilon_greedy_deviates_at_its_rate_and_passes_restarts_on():

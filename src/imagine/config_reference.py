@@ -115,6 +115,17 @@ def _presets_table(cls: type, presets: dict[str, Any], methods: bool) -> list[st
     return lines
 
 
+def _encoder_presets() -> list[str]:
+    """One line per (preset, encoder) of ``ENCODER_PRESETS``: what it sets over its column."""
+    lines = [""]
+    for preset, by_encoder in config.ENCODER_PRESETS.items():
+        for encoder, values in by_encoder.items():
+            settings = ", ".join(f"`{k}` {_code(v)}" for k, v in values.items())
+            lines.append(f"With `encoder: {encoder}` the {preset} augmented agent sets over its "
+                         f"column (`ENCODER_PRESETS`): {settings}.")  # fmt: skip
+    return lines
+
+
 PRESET_TABLES = {"AgentConfig": ("AGENT_PRESETS", True), "VisionConfig": ("VISION_PRESETS", False)}
 """Which preset mapping of :mod:`imagine.config` each class's table shows, and whether it holds
 one entry per method (baseline, augmented)."""
@@ -143,6 +154,8 @@ def configuration_markdown() -> str:
             mapping, methods = PRESET_TABLES[name]
             out += ["", f"### Presets (`{mapping}`)", "", "—: the default.", ""]
             out += _presets_table(cls, getattr(config, mapping), methods)
+            if name == "AgentConfig":
+                out += _encoder_presets()
         out += ["", "### Fields", ""]
         defaults = {f.name: _default(f) for f in dataclasses.fields(cls)}
         for d in docs:

@@ -106,13 +106,22 @@ def check_evaluation(path: Path, config: AgentConfig, episodes: int) -> None:
     what it measured)."""
     saved = read_json(path, "evaluation")
     asked = json.loads(json.dumps(dataclasses.asdict(config)))  # tuples as JSON lists
-    changed = changed_fields(saved.get("config", asked), asked)
+    changed = changed_fields(with_new_defaults(saved.get("config", asked)), asked)
     if saved.get("episodes") != episodes:
         changed = ", ".join(filter(None, [changed, f"test episodes {saved.get('episodes')} -> "
                                                    f"{episodes}"]))  # fmt: skip
     if changed:
         raise ConfigError(f"{path} was made with another setting ({changed}): give another "
                           "OUT or remove that arm's folder")  # fmt: skip
+
+
+def with_new_defaults(saved: dict[str, Any]) -> dict[str, Any]:
+    """A recorded config with the AgentConfig fields added since it was written at their
+    defaults: a new field's default is the behaviour of the code before it, so a record that
+    lacks it measured that default."""
+    defaults = {f.name: f.default for f in dataclasses.fields(AgentConfig)
+                if f.default is not dataclasses.MISSING}  # fmt: skip
+    return {**json.loads(json.dumps(defaults)), **saved}
 
 
 def evaluation_path(folder: Path, steps: int) -> Path:
