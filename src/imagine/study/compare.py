@@ -119,8 +119,8 @@ def with_new_defaults(saved: dict[str, Any]) -> dict[str, Any]:
     """A recorded config with the AgentConfig fields added since it was written at their
     defaults: a new field's default is the behaviour of the code before it, so a record that
     lacks it measured that default."""
-    defaults = {f.name: f.default for f in dataclasses.fields(AgentConfig)
-                if f.default is not dataclasses.MISSING}  # fmt: skip
+    defaults = {f.name: f.default if f.default_factory is dataclasses.MISSING
+                else f.default_factory() for f in dataclasses.fields(AgentConfig)}  # fmt: skip
     return {**json.loads(json.dumps(defaults)), **saved}
 
 
