@@ -59,15 +59,21 @@ def counted(p):
     return made
 
 
-def test_an_untrusted_agent_with_the_fallback_makes_the_controls_updates(monkeypatch):
-    expansions = []
+@pytest.fixture
+def expansions(monkeypatch):
+    """One entry per call of value expansion through M (``expanded_target``)."""
+    calls = []
     original = imagine.learning.population.expanded_target
 
     def counting(*args, **kwargs):
-        expansions.append(1)
+        calls.append(1)
         return original(*args, **kwargs)
 
     monkeypatch.setattr(imagine.learning.population, "expanded_target", counting)
+    return calls
+
+
+def test_an_untrusted_agent_with_the_fallback_makes_the_controls_updates(expansions):
     p = population(0, imagination_adaptive=True, imagination_fallback=True,
                    imagination_trust_test="step", imagination_trust_floor=1.0,
                    n_imaginary_updates=3, value_expansion=2, target_update_period=10)  # fmt: skip
@@ -113,15 +119,7 @@ def test_the_fallback_and_the_step_test_refuse_bad_settings_in_one_line():
         assert str(error.value) == message
 
 
-def test_an_agent_switched_to_the_papers_rollouts_counts_as_trusted_by_the_fallback(monkeypatch):
-    expansions = []
-    original = imagine.learning.population.expanded_target
-
-    def counting(*args, **kwargs):
-        expansions.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(imagine.learning.population, "expanded_target", counting)
+def test_an_agent_switched_to_the_papers_rollouts_counts_as_trusted_by_the_fallback(expansions):
     # every action's backups in episode 0, the paper's policy rollouts from episode 1 on,
     # where M is not judged (a floor of 1.0 would never pass it)
     p = population(0, imagination_adaptive=True, imagination_fallback=True,
