@@ -171,19 +171,21 @@ def bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
     ]
 
 
-def test_every_bad_input_gets_one_line_and_exit_2(tmp_path):
-    from concurrent.futures import ThreadPoolExecutor
+def test_every_bad_input_gets_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
+    from imagine.cli import main
 
+    monkeypatch.chdir(tmp_path)
     cases = bad_inputs(tmp_path)
-
-    def run(args):
-        return subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False,
-                              cwd=tmp_path)  # fmt: skip
-
-    with ThreadPoolExecutor(max_workers=2) as pool:  # two commands at a time: two cores
-        results = list(pool.map(run, [args for args, _ in cases]))
-    for (args, words), done in zip(cases, results, strict=True):
-        lines = done.stderr.strip().splitlines()
-        assert done.returncode == 2, (args, done.stderr)
-        assert len(lines) == 1 and lines[0].startswith("error:"), (args, done.stderr)
+    for args, words in cases:  # in this process: `main` is the console script
+        monkeypatch.setattr(sys, "argv", ["imagine", *args])
+        with pytest.raises(SystemExit) as exit_:
+            main()
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert exit_.value.code == 2, (args, lines)
+        assert len(lines) == 1 and lines[0].startswith("error:"), (args, lines)
         assert words in lines[0], (args, lines[0])
+    args, words = cases[0]  # and once through the installed command itself
+    done = subprocess.run([IMAGINE, *args], capture_output=True, text=True, check=False,
+                          cwd=tmp_path)  # fmt: skip
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and words in lines[0], done.stderr

@@ -52,14 +52,14 @@ def test_loss_matches_the_formula_on_a_hand_computed_case():
     assert float(loss.total) == pytest.approx(3 * np.log(2) + 4 * kl, rel=1e-6)
 
 
-def test_loss_falls_over_a_few_hundred_steps(images):
+def test_loss_falls_over_sixty_steps(images):
     torch.manual_seed(0)
     vae = ConvVAE(8).to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(vae.parameters(), lr=1e-3)
-    x = to_input(images[0][:32]).contiguous(memory_format=torch.channels_last)
+    x = to_input(images[0][:16]).contiguous(memory_format=torch.channels_last)
     generator = torch.Generator().manual_seed(0)
     losses = []
-    for _ in range(200):
+    for _ in range(60):
         loss = vae.loss(x, beta=4.0, generator=generator)
         optimizer.zero_grad()
         loss.total.backward()
