@@ -223,6 +223,9 @@ def test_a_study_lists_its_seeds_and_reads_an_older_count():
     older["seeds"], older["workers"] = 5, 1
     assert same_study(older, StudyConfig(workers=2))  # make run's study.yaml before the change
     assert not same_study(older, StudyConfig(seeds=(0, 1, 2, 3)))
+    del older["separate_runs"]  # written before the setting existed: it measured the default
+    assert same_study(older, StudyConfig(workers=2))
+    assert not same_study(older, StudyConfig(separate_runs=True))
     jobs = study_jobs("out", ["hard"], (3, 7), [1000])
     assert [job.name for job in jobs] == [f"hard-{m}-{s}" for m in ("baseline", "augmented")
                                           for s in (3, 7)]  # fmt: skip

@@ -7,6 +7,7 @@ the same folder and is then renamed over the target, so a reader never sees half
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from collections.abc import Mapping
@@ -56,6 +57,15 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
 
 def write_json(path: str | Path, document: Any) -> Path:
     return atomic_write_text(path, json.dumps(document, indent=2, sort_keys=True) + "\n")
+
+
+def with_defaults(cls: type, saved: Mapping[str, Any]) -> dict[str, Any]:
+    """A recorded config of dataclass ``cls`` with the fields added since it was written at
+    their defaults, as JSON values: a new field's default is the behaviour of the code before
+    it (the project's rule for new fields), so a record that lacks it measured that default."""
+    defaults = {f.name: f.default if f.default_factory is dataclasses.MISSING
+                else f.default_factory() for f in dataclasses.fields(cls)}  # fmt: skip
+    return {**json.loads(json.dumps(defaults)), **saved}
 
 
 def changed_fields(saved: Mapping[str, Any], asked: Mapping[str, Any], skip=()) -> str:

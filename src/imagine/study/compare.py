@@ -29,6 +29,7 @@ from imagine.checkpoint import (
     changed_fields,
     read_json,
     save_figure,
+    with_defaults,
     write_json,
 )
 from imagine.config import AgentConfig, for_method
@@ -106,22 +107,13 @@ def check_evaluation(path: Path, config: AgentConfig, episodes: int) -> None:
     what it measured)."""
     saved = read_json(path, "evaluation")
     asked = json.loads(json.dumps(dataclasses.asdict(config)))  # tuples as JSON lists
-    changed = changed_fields(with_new_defaults(saved.get("config", asked)), asked)
+    changed = changed_fields(with_defaults(AgentConfig, saved.get("config", asked)), asked)
     if saved.get("episodes") != episodes:
         changed = ", ".join(filter(None, [changed, f"test episodes {saved.get('episodes')} -> "
                                                    f"{episodes}"]))  # fmt: skip
     if changed:
         raise ConfigError(f"{path} was made with another setting ({changed}): give another "
                           "OUT or remove that arm's folder")  # fmt: skip
-
-
-def with_new_defaults(saved: dict[str, Any]) -> dict[str, Any]:
-    """A recorded config with the AgentConfig fields added since it was written at their
-    defaults: a new field's default is the behaviour of the code before it, so a record that
-    lacks it measured that default."""
-    defaults = {f.name: f.default if f.default_factory is dataclasses.MISSING
-                else f.default_factory() for f in dataclasses.fields(AgentConfig)}  # fmt: skip
-    return {**json.loads(json.dumps(defaults)), **saved}
 
 
 def evaluation_path(folder: Path, steps: int) -> Path:

@@ -19,7 +19,13 @@ from typing import Any
 
 import yaml
 
-from imagine.checkpoint import atomic_write_text, changed_fields, read_json, write_json
+from imagine.checkpoint import (
+    atomic_write_text,
+    changed_fields,
+    read_json,
+    with_defaults,
+    write_json,
+)
 from imagine.config import (
     AGENT_PRESETS,
     VISION_PRESETS,
@@ -147,7 +153,8 @@ baselines (which never change our runs)."""
 def same_study(saved: dict[str, Any], config: StudyConfig) -> bool:
     """Whether a study folder's ``study.yaml`` (``saved``) is ``config``'s study: the same
     settings but for how it runs (backend, workers, address) and its peer baselines. An older
-    file's seed count n reads as seeds 0..n-1; an older file has no baselines."""
+    file's seed count n reads as seeds 0..n-1; a setting added since it was written reads as
+    its default."""
     return not study_changes(saved, config)
 
 
@@ -158,7 +165,7 @@ def study_changes(saved: dict[str, Any], config: StudyConfig) -> str:
     if isinstance(saved.get("seeds"), int):
         saved["seeds"] = list(range(saved["seeds"]))
     mine = yaml.safe_load(yaml.safe_dump(dataclasses.asdict(config)))
-    return changed_fields(saved, mine, skip=STUDY_KEEP)
+    return changed_fields(with_defaults(StudyConfig, saved), mine, skip=STUDY_KEEP)
 
 
 def prepare_vision(config: StudyConfig, out: Path, log: Callable[[str], None]) -> str | None:
