@@ -275,11 +275,18 @@ def test_compare_table_and_figure(tmp_path, monkeypatch):
     assert again.exit_code == 0 and evaluation.stat().st_mtime_ns == before
 
 
-def test_sb3_row_when_installed(tmp_path):
+def test_sb3_row_when_installed(tmp_path, monkeypatch):
     pytest.importorskip("stable_baselines3")
+    import tempfile
+
     from imagine.study.compare import gather, train_sb3
 
-    train_sb3(LINE, [], tmp_path, [0], [150, 300], episodes=10, log=lambda line: None)
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
+    train_sb3(LINE, [], tmp_path / "out", [0], [150, 300], episodes=10, log=lambda line: None)
+    assert not list(temporary.glob("SB3-*"))  # SB3's logger left no folder behind
+    tmp_path = tmp_path / "out"
     rows = gather(tmp_path)
     assert [r["steps"] for r in rows] == [150, 300]
     assert all(r["method"] == "sb3-dqn" and not r["rl_zoo"] for r in rows)

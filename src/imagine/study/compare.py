@@ -175,6 +175,15 @@ def sb3_available() -> bool:
     return True
 
 
+def without_log_folder(model: Any) -> Any:
+    """``model`` (an SB3 algorithm) logging nowhere: by default every ``learn`` makes a folder
+    ``SB3-<date>`` in the system's temporary directory, never removed."""
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
+
+
 def train_sb3(
     env_id: str,
     wrappers: Sequence[str],
@@ -206,8 +215,8 @@ def train_sb3(
             continue
         log(f"sb3-dqn: seed {seed} to {max(todo)} steps")
         policy_name = "CnnPolicy" if spec.kind == "image" else "MlpPolicy"
-        model = DQN(policy_name, make_env(env_id, wrappers), seed=seed, device="cpu", verbose=0,
-                    **settings)  # fmt: skip
+        model = without_log_folder(DQN(policy_name, make_env(env_id, wrappers), seed=seed,
+                                       device="cpu", verbose=0, **settings))  # fmt: skip
         # the exploration schedule of the Zoo's horizon; learning stops at the largest budget
         evaluate = sb3_evaluations(spec, folder, seed, todo, episodes, settings)
         model.learn(total_timesteps=horizon, callback=evaluate)

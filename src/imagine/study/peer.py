@@ -28,7 +28,7 @@ import gymnasium as gym
 from imagine import ENV_ID
 from imagine.checkpoint import read_json, write_json
 from imagine.envs.gesture_puzzle.rules import MAX_EPISODE_ACTIONS
-from imagine.study.compare import sb3_available
+from imagine.study.compare import sb3_available, without_log_folder
 
 METHOD = "sb3-dqn"
 BASELINES = ("sb3",)
@@ -63,7 +63,8 @@ def train_peer(
     log(f"sb3-dqn: {task} seed {seed} to {max(todo)} episodes")
     horizon = MAX_EPISODE_ACTIONS * max(budgets)
     env = gym.make(ENV_ID, task=task, hand_switch_prob=hand_switch_prob)
-    model = DQN("CnnPolicy", env, seed=seed, device="cpu", verbose=0, **settings(budgets))
+    model = without_log_folder(DQN("CnnPolicy", env, seed=seed, device="cpu", verbose=0,
+                                   **settings(budgets)))  # fmt: skip
     values = {"task": task, "method": METHOD, "seed": seed, "settings": settings(budgets),
               "horizon_steps": horizon}  # fmt: skip
     evaluate = _budget_callback(folder, todo, eval_episodes, eval_seed, hand_switch_prob, values)
