@@ -284,10 +284,10 @@ def test_sb3_row_when_installed(tmp_path, monkeypatch):
     temporary = tmp_path / "tmp"
     temporary.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temporary))
-    train_sb3(LINE, [], tmp_path / "out", [0], [150, 300], episodes=10, log=lambda line: None)
+    out = tmp_path / "out"
+    train_sb3(LINE, [], out, [0], [150, 300], episodes=10, log=lambda line: None)
     assert not list(temporary.glob("SB3-*"))  # SB3's logger left no folder behind
-    tmp_path = tmp_path / "out"
-    rows = gather(tmp_path)
+    rows = gather(out)
     assert [r["steps"] for r in rows] == [150, 300]
     assert all(r["method"] == "sb3-dqn" and not r["rl_zoo"] for r in rows)
     assert rows[0]["settings"] == {"buffer_size": 300}  # SB3's defaults, a buffer of the run
