@@ -35,6 +35,8 @@ IMAGINATION_MODELS = ("learned", "true", "true_mean", "true_reward", "true_end",
 (:mod:`imagine.envs.gesture_puzzle.true_model`)."""
 REWARD_LOSSES = ("logcosh", "mse")
 """The choices of ``AgentConfig.reward_loss`` (:data:`imagine.models.world_model.REWARD_LOSSES`)."""
+TERMINAL_WEIGHTS = ("none", "balanced")
+"""The choices of ``AgentConfig.terminal_weight``."""
 UNCERTAINTIES = ("disagreement", "support")
 """The choices of ``AgentConfig.imagination_uncertainty`` (:mod:`imagine.learning.gate`)."""
 ENCODERS = ("vae", "oracle", "vector", "onehot")
@@ -403,6 +405,11 @@ class AgentConfig:
     """The r-network's loss: logcosh (the paper) or mse. Log-cosh's gradient is at most 1
     per transition, so the rare +50 of a goal state moves r little against the many -1s; the
     squared error's grows with the error (docs/research/v-fit-for-dynamics.md, round 7)."""
+    terminal_weight: str = "none"
+    """How d's binary cross-entropy weighs the terminal transitions: none (the paper: as
+    sampled) or balanced (each terminal one weighs as many of the others as its agent's M_R
+    holds per terminal transition, so both classes weigh the same however rare the failures
+    become; the positive weight of a class-weighted cross-entropy)."""
     model_batch: int = 512
     """Real transitions per M update."""
     model_lr: float = 1e-3
@@ -483,6 +490,11 @@ class AgentConfig:
     imagination_trust_tolerance: float = 0.1
     """With imagination_trust_test step: a prediction is right when its distance to the
     observed next state is below this share of ||next_mu - mu|| (> 0)."""
+    imagination_trust_terminals: int = 0
+    """With imagination_adaptive: M is trusted only while d is right as well, calling at least
+    imagination_trust_floor of the newest this many real terminal transitions of M_R terminal
+    (and of the newest 100 others not terminal); 0: d is not judged (the one-step test judges
+    M's next state alone)."""
     imagination_fallback: bool = False
     """With imagination_adaptive: the imaginary C updates an agent does not make (M not
     trusted, N_I' below N_I, nothing in M_I yet) are made on real batches of M_R instead;
@@ -621,6 +633,16 @@ class AgentConfig:
             raise ConfigError(
                 "agent.imagination_trust_tolerance must be > 0, got "
                 f"{self.imagination_trust_tolerance}"
+            )
+        if self.terminal_weight not in TERMINAL_WEIGHTS:
+            raise ConfigError(
+                f"agent.terminal_weight must be one of {', '.join(TERMINAL_WEIGHTS)}, got "
+                f"{self.terminal_weight!r}"
+            )
+        if self.imagination_trust_terminals < 0:
+            raise ConfigError(
+                "agent.imagination_trust_terminals must be >= 0, got "
+                f"{self.imagination_trust_terminals}"
             )
         if self.imagination_fallback and not self.imagination_adaptive:
             raise ConfigError(

@@ -142,6 +142,22 @@ class ReplayMemory:
         rows = torch.arange(self.agents, device=device).unsqueeze(1)
         return {name: value[rows, index] for name, value in self.data.items()}, back <= size
 
+    def newest_where(self, field: str, n: int) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Every agent's ``n`` most recent transitions whose ``field`` is nonzero (fields
+        (agents, n, ...), newest first), and which of those rows hold one (bool (agents, n);
+        an agent with fewer has its last rows empty)."""
+        flag = self.data[field]
+        device = flag.device
+        slot = torch.arange(self.capacity, device=device).unsqueeze(0)
+        position = torch.as_tensor(self.position, device=device).unsqueeze(1)
+        size = torch.as_tensor(self.size, device=device).unsqueeze(1)
+        age = (position - 1 - slot) % self.capacity  # 0: the newest slot
+        age = age.masked_fill((flag == 0) | (age >= size), self.capacity)  # not such a one
+        n = min(n, self.capacity)
+        ages, index = age.topk(n, dim=1, largest=False)
+        rows = torch.arange(self.agents, device=device).unsqueeze(1)
+        return {name: value[rows, index] for name, value in self.data.items()}, ages < self.capacity
+
     def state_dict(self, prefix: str, agent: int = 0) -> dict[str, torch.Tensor]:
         """One agent's ring, as a single agent's memory checkpoint."""
         size = self.size[agent]

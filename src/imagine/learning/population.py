@@ -46,6 +46,7 @@ from imagine.learning.gate import (
     one_step_close,
     one_step_right,
     support_distance,
+    terminal_right,
 )
 from imagine.learning.imagination import (
     SplitModel,
@@ -225,15 +226,27 @@ class Population:
         if len(due) < len(live):
             gens = [g if i in due else None for i, g in enumerate(gens)]
         rows = torch.as_tensor(due, device=self.device)
+        weight = self._terminal_weight()
+        resample = c.model_latents == "sample"
         for _ in range(c.model_updates):
             # K bootstrap batches, one per member of the MDN (PETS); one batch for K = 1
             batch = self.real.sample(c.model_batch * c.model_ensemble, gens)
-            losses = self.model.update(batch, gens, resample=c.model_latents == "sample")
+            losses = self.model.update(batch, gens, resample=resample, terminal_weight=weight)
             for name, loss in losses.items():
                 self._record(f"losses/{name}", loss, rows)
         for _ in range(c.reward_updates):  # r and d alone
             batch = self.real.sample(c.model_batch, gens)
-            self.model.update(batch, gens, resample=c.model_latents == "sample", mdn=False)
+            self.model.update(batch, gens, resample=resample, mdn=False, terminal_weight=weight)
+
+    def _terminal_weight(self) -> torch.Tensor | None:
+        """``terminal_weight`` balanced: per agent (P,), the transitions of M_R that are not
+        terminal per terminal one (at least 1; 1 while it holds none): the weight that makes
+        d's two classes weigh the same. None: as sampled."""
+        if self.config.terminal_weight == "none":
+            return None
+        ends = self.real.data["done"].sum(1)  # unheld slots hold 0
+        held = torch.as_tensor(self.real.size, device=ends.device, dtype=ends.dtype)
+        return torch.where(ends > 0, (held - ends) / ends.clamp(min=1), 1.0).clamp(min=1.0)
 
     def _start_episodes(self) -> None:
         """Reset the envs of the agents starting an episode (each seeded as its spec says), and
@@ -433,6 +446,9 @@ class Population:
                                        c.imagination_trust_tolerance).tolist()  # fmt: skip
             else:
                 right = one_step_right(self.model, recent, held, self.n_actions).tolist()
+            if c.imagination_trust_terminals:  # d judged too: the lower of the two shares
+                d_right = terminal_right(self.model, self.real, c.imagination_trust_terminals)
+                right = [min(a, b) for a, b in zip(right, d_right.tolist(), strict=True)]
             for i in due:
                 self.trust.judge(i, self.t[i], right[i])
         for i in agents:

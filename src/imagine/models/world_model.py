@@ -540,6 +540,7 @@ class PopulationWorldModel(nn.Module):
         generators: Sequence[torch.Generator | None],
         resample: bool = True,
         mdn: bool = True,
+        terminal_weight: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """One update of each network of every agent whose generator is given, on its batch
         (P, K * B, ...) from the real memory: K bootstrap batches of B one after the other,
@@ -547,7 +548,8 @@ class PopulationWorldModel(nn.Module):
         ``resample`` latents are drawn from V's N(mu, sigma) (the paper's data augmentation);
         without, M learns from V's means. Returns the three losses per agent (P,), the MDN's
         averaged over its members (each member's gradient is that of its own loss). Without
-        ``mdn``, r and d alone (a batch (P, B, ...); ``reward_updates``)."""
+        ``mdn``, r and d alone (a batch (P, B, ...); ``reward_updates``). ``terminal_weight``
+        (P,): the weight of each agent's terminal transitions in d's loss (1: none)."""
         agents = [i for i, g in enumerate(generators) if g is not None]
         if mdn:  # z drawn before next_z: the random streams of the paper's update
             z = agent_normal(batch["mu"], batch["sigma"], generators) if resample else batch["mu"]
@@ -566,8 +568,9 @@ class PopulationWorldModel(nn.Module):
         reward = self.reward(next_z[:, first], generators).squeeze(-1)
         terminal = self.terminal(next_z[:, first], generators).squeeze(-1)
         losses["reward"] = self.reward_loss(reward - batch["reward"][:, first]).mean(-1)
+        weight = None if terminal_weight is None else terminal_weight.unsqueeze(-1)
         losses["terminal"] = F.binary_cross_entropy_with_logits(
-            terminal, batch["done"][:, first], reduction="none"
+            terminal, batch["done"][:, first], reduction="none", pos_weight=weight
         ).mean(-1)
         self.optimizer.zero_grad()
         total = sum(loss[agents].sum() for loss in losses.values())
